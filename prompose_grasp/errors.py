@@ -1,0 +1,47 @@
+"""The error hierarchy. Every error the library raises on purpose is a `PromposeError`.
+
+Messages say what was wrong and what is accepted, so a user can fix the call without reading the source.
+Subclasses also derive from the matching built-in (`ValueError`, `LookupError`, `ImportError`) so that code
+written against the standard library's conventions keeps working.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+
+class PromposeError(Exception):
+    """Root of every error raised on purpose by prompose_grasp."""
+
+
+class InvalidInputError(PromposeError, ValueError):
+    """An argument has the wrong shape, dtype, units or values (NaN, non-rotation, bad intrinsics, ...)."""
+
+
+class UnknownNameError(PromposeError, LookupError):
+    """A name (robot, gripper, IoU mode, config variant, ...) is not one of the known choices."""
+
+    def __init__(self, kind: str, name: object, known: Iterable[str]):
+        self.kind = kind
+        self.name = name
+        self.known = tuple(known)
+        super().__init__(f"unknown {kind} {name!r}; known: {', '.join(self.known)}")
+
+    def __str__(self) -> str:  # LookupError would otherwise repr() the message
+        return str(self.args[0])
+
+
+class MissingDependencyError(PromposeError, ImportError):
+    """An optional dependency is needed for this call; the message names the extra that installs it."""
+
+
+class UnsafeCommandError(PromposeError):
+    """A motion command was refused before it reached an arm (limits, step, speed, workspace, NaN)."""
+
+
+class UnreachableError(PromposeError):
+    """No joint configuration reaches the requested pose within tolerance."""
+
+
+class CameraError(PromposeError):
+    """A camera failed to deliver a frame."""
