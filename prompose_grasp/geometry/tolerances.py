@@ -14,3 +14,12 @@ SMALL_ANGLE_RAD = 1e-6
 #: Intrinsics: focal lengths must be positive and principal points finite; depth readings at or below this
 #: distance [m] are treated as missing (no RGB-D sensor reports geometry closer than 1 mm).
 MIN_VALID_DEPTH_M = 1e-3
+
+#: A point counts as inside a box when it is outside by at most this fraction of the larger box's longest side.
+#: Edge/face crossing points are computed with a few float64 roundings (relative error ~1e-16 each); 1e-9 keeps
+#: corners that lie exactly on a face while adding at most ~1e-9 relative error to an intersection volume.
+BOX_INSIDE_RTOL = 1e-9
+
+#: An intersection polytope whose smallest principal spread is below this fraction of the box scale is flat
+#: (touching faces, edges or corners): its volume is 0 and Qhull, which would fail on it, is not called.
+BOX_FLAT_RTOL = 1e-9
