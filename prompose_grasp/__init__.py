@@ -2,7 +2,8 @@
 
 The curated public API lives here; subpackages hold the rest:
 
-- `prompose_grasp.geometry`: SE(3), `Pose9D`, oriented-box IoU, point clouds, Chamfer distance (numpy + scipy).
+- `prompose_grasp.geometry`: SE(3), `Pose9D`, oriented-box IoU, point clouds, Chamfer distance
+  (numpy + scipy only).
 - `prompose_grasp.eval`: NOCS-compatible 9-DoF pose metrics (`compute_nocs_map`).
 """
 

@@ -161,6 +161,6 @@ def T_from_pose_vector(pose: ArrayLike) -> np.ndarray:
 
 
 def pose_vector_from_T(T: ArrayLike) -> np.ndarray:
-    """UR pose vector (x, y, z [m], rx, ry, rz [rad]) of a rigid transform; inverse of `T_from_pose_vector`."""
+    """UR pose vector (x, y, z [m], rx, ry, rz [rad]) of a transform; inverse of `T_from_pose_vector`."""
     T = as_transform(T)
     return np.concatenate([T[:3, 3], so3_log(T[:3, :3])])
