@@ -1,8 +1,8 @@
 """Boxes: canonical corners, exact oriented-box IoU and closed-form axis-aligned IoU.
 
-A box is (R, t, size): `R` (3, 3) rotation from the box frame to the reference frame, `t` (3,) the box centre in
-the reference frame [m], `size` (3,) full extents along the box axes [m]. The box frame has its origin at the
-box centre, so the box is the set {R p + t : |p_i| <= size_i / 2}.
+A box is (R, t, size): `R` (3, 3) rotation from the box frame to the reference frame, `t` (3,) the box
+centre in the reference frame [m], `size` (3,) full extents along the box axes [m]. The box frame has its
+origin at the box centre, so the box is the set {R p + t : |p_i| <= size_i / 2}.
 
 Corner order (NOCS's `get_3d_bbox` order, so corner lists are comparable with published code): corner `i`
 has sign (sx, sy, sz) with sy = - if bit 2 of i is set, sx = - if bit 1 is set, sz = - if bit 0 is set::
@@ -10,18 +10,18 @@ has sign (sx, sy, sz) with sy = - if bit 2 of i is set, sx = - if bit 1 is set, 
           y (up)
           |
       2 ------- 0          top face    (+y): 0 1 2 3
-      |\        |\         bottom face (-y): 4 5 6 7
+      |\\        |\\         bottom face (-y): 4 5 6 7
       | 3 ------- 1        +x face: 0 1 4 5      -x face: 2 3 6 7
       6 |-------4 |        +z face: 0 2 4 6      -z face: 1 3 5 7
-       \|        \|
+       \\|        \\|
         7 ------- 5 --- x
          \
           z (towards the viewer in this sketch: 0, 2, 4, 6 are the +z corners)
 
-The oriented IoU is exact: the intersection of two boxes is a convex polytope whose every vertex is the meeting
-point of three of the twelve face planes, i.e. a corner of one box inside the other, or a point where an edge of
-one box crosses a face of the other. Those points are collected in closed form and scipy's ConvexHull (Qhull)
-gives the volume. No sampling is involved.
+The oriented IoU is exact: the intersection of two boxes is a convex polytope whose every vertex is the
+meeting point of three of the twelve face planes, i.e. a corner of one box inside the other, or a point where
+an edge of one box crosses a face of the other. Those points are collected in closed form and
+scipy's ConvexHull (Qhull) gives the volume. No sampling is involved.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry.se3 import as_rotation
-from prompose_grasp.geometry.tolerances import BOX_INSIDE_RTOL, BOX_FLAT_RTOL
+from prompose_grasp.geometry.tolerances import BOX_FLAT_RTOL, BOX_INSIDE_RTOL
 
 __all__ = [
     "BOX_CORNER_SIGNS",

@@ -15,11 +15,18 @@ SMALL_ANGLE_RAD = 1e-6
 #: distance [m] are treated as missing (no RGB-D sensor reports geometry closer than 1 mm).
 MIN_VALID_DEPTH_M = 1e-3
 
-#: A point counts as inside a box when it is outside by at most this fraction of the larger box's longest side.
-#: Edge/face crossing points are computed with a few float64 roundings (relative error ~1e-16 each); 1e-9 keeps
-#: corners that lie exactly on a face while adding at most ~1e-9 relative error to an intersection volume.
+#: A point counts as inside a box when it is outside by at most this fraction of the larger box's longest
+#: side. Edge/face crossing points are computed with a few float64 roundings (relative error ~1e-16 each);
+#: 1e-9 keeps corners that lie exactly on a face while adding at most ~1e-9 relative error to an
+#: intersection volume.
 BOX_INSIDE_RTOL = 1e-9
 
 #: An intersection polytope whose smallest principal spread is below this fraction of the box scale is flat
 #: (touching faces, edges or corners): its volume is 0 and Qhull, which would fail on it, is not called.
 BOX_FLAT_RTOL = 1e-9
+
+#: Default tolerances of `Pose9D.allclose`: rotation angle [rad] and translation / size [m]. Poses that went
+#: through a few float64 conversions (matrix, NOCS sRT, a transform and its inverse) agree to ~1e-15; 1e-9 rad
+#: and 1 nm say "the same pose up to rounding", far below anything a sensor can resolve.
+POSE_ALLCLOSE_RAD = 1e-9
+POSE_ALLCLOSE_M = 1e-9
