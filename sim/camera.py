@@ -1,0 +1,134 @@
+"""Simulated RGB-D cameras: MuJoCo's projection as `CameraIntrinsics`, frame conversions, the frame type.
+
+Frames. `cam` is OpenCV (x right, y down, z forward). A MuJoCo camera (`camgl` here) looks along its -z with
++y up, so the two differ by a half turn about x: `T_camgl_cam = diag(1, -1, -1, 1)`, and `T_world_cam =
+T_world_camgl @ T_camgl_cam`.
+
+Projection. MuJoCo renders with a vertical field of view `fovy` and square pixels, and its image rows run top
+to bottom after the renderer's flip. With OpenCV's convention that pixel (u, v) has its centre at integer (u,
+v):
+
+    fy = fx = (height / 2) / tan(fovy / 2),   cx = (width - 1) / 2,   cy = (height - 1) / 2
+
+(the principal point sits at the centre of the image, which is half a pixel off the integer grid for even
+sizes). Depth from `mujoco.Renderer` with depth rendering on is the metric distance along the optical axis (z
+in `cam`), not along the ray. Both facts are checked numerically in tests/sim/test_sim_camera.py against a
+rendered plane at a known pose (error below 1e-6 m).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from prompose_grasp.errors import InvalidInputError
+from prompose_grasp.geometry.camera import CameraIntrinsics
+from prompose_grasp.geometry.se3 import as_transform, make_T
+from sim.noise import NOISE_PRESETS, DepthNoiseConfig
+
+__all__ = [
+    "T_CAMGL_CAM",
+    "CameraSpec",
+    "RGBDFrame",
+    "look_at",
+    "mujoco_intrinsics",
+]
+
+#: (4, 4) OpenCV camera frame expressed in the MuJoCo camera frame (half turn about x); its own inverse.
+T_CAMGL_CAM = np.diag([1.0, -1.0, -1.0, 1.0])
+T_CAMGL_CAM.setflags(write=False)
+
+
+def mujoco_intrinsics(width: int, height: int, fovy_deg: float) -> CameraIntrinsics:
+    """Pinhole intrinsics [px] of a MuJoCo camera rendering width x height with vertical view angle fovy."""
+    if int(width) != width or int(height) != height or width <= 0 or height <= 0:
+        raise InvalidInputError(f"width and height must be positive integers, got {width} x {height}")
+    if not (math.isfinite(fovy_deg) and 0.0 < fovy_deg < 180.0):
+        raise InvalidInputError(f"fovy_deg must lie in (0, 180) degrees, got {fovy_deg}")
+    f = (height / 2.0) / math.tan(math.radians(fovy_deg) / 2.0)
+    return CameraIntrinsics(
+        fx=f, fy=f, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, width=int(width), height=int(height)
+    )
+
+
+def K_matrix(K: CameraIntrinsics) -> np.ndarray:
+    """(3, 3) float64 camera matrix of intrinsics."""
+    return np.array([[K.fx, 0.0, K.cx], [0.0, K.fy, K.cy], [0.0, 0.0, 1.0]])
+
+
+def look_at(eye_m: ArrayLike, target_m: ArrayLike, up: ArrayLike = (0.0, 0.0, 1.0)) -> np.ndarray:
+    """T_world_cam (4, 4) of an OpenCV camera at `eye_m` (3,) [m] looking at `target_m` (3,) [m].
+
+    The image's "up" (-y of the camera) leans towards the world vector `up`.
+    """
+    eye = np.asarray(eye_m, dtype=np.float64)
+    target = np.asarray(target_m, dtype=np.float64)
+    up_v = np.asarray(up, dtype=np.float64)
+    if eye.shape != (3,) or target.shape != (3,) or up_v.shape != (3,):
+        raise InvalidInputError("look_at needs (3,) eye, target and up vectors")
+    z = target - eye
+    if not np.all(np.isfinite(z)) or np.linalg.norm(z) < 1e-9:
+        raise InvalidInputError(f"look_at: eye {eye} and target {target} must be finite and distinct")
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up_v)
+    if np.linalg.norm(x) < 1e-9:
+        raise InvalidInputError("look_at: the viewing direction is parallel to `up`; pass another up vector")
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return make_T(np.stack([x, y, z], axis=1), eye)
+
+
+@dataclass(frozen=True, eq=False)
+class CameraSpec:
+    """A camera to add to a scene.
+
+    Attributes:
+        name: unique camera name.
+        width, height: image size [px].
+        fovy_deg: vertical field of view [deg] (MuJoCo's convention).
+        T_parent_cam: (4, 4) pose of the OpenCV camera frame in the parent body frame (world if fixed).
+        parent_body: None for a fixed camera on the world body; a body name for a mounted (wrist) camera.
+        noise: depth sensor model applied by `SimWorld.render`.
+    """
+
+    name: str
+    width: int = 640
+    height: int = 480
+    fovy_deg: float = 58.0
+    T_parent_cam: np.ndarray = field(default_factory=lambda: np.eye(4))
+    parent_body: str | None = None
+    noise: DepthNoiseConfig = NOISE_PRESETS["clean"]
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            raise InvalidInputError("a camera needs a non-empty name")
+        mujoco_intrinsics(self.width, self.height, self.fovy_deg)  # validates size and fovy
+        object.__setattr__(self, "T_parent_cam", as_transform(self.T_parent_cam, name="T_parent_cam"))
+
+    @property
+    def intrinsics(self) -> CameraIntrinsics:
+        return mujoco_intrinsics(self.width, self.height, self.fovy_deg)
+
+
+@dataclass(frozen=True, eq=False)
+class RGBDFrame:
+    """One RGB-D frame, colour and depth aligned pixel for pixel.
+
+    Attributes:
+        color: (H, W, 3) uint8 RGB.
+        depth_m: (H, W) float32 depth along the optical axis [m]; 0 where the sensor gives no reading.
+        intrinsics: the pinhole model of both images.
+        T_world_cam: (4, 4) pose of the OpenCV camera frame in the world [m].
+        camera: the camera's name.
+        sim_time_s: simulation time of the frame [s].
+    """
+
+    color: np.ndarray
+    depth_m: np.ndarray
+    intrinsics: CameraIntrinsics
+    T_world_cam: np.ndarray
+    camera: str
+    sim_time_s: float
