@@ -73,11 +73,8 @@ class Pose9D:
         return (Pose9D, (np.array(self.R), np.array(self.t), np.array(self.size)))
 
     def __repr__(self) -> str:
-        return (
-            f"Pose9D(R={np.array2string(self.R, precision=4, separator=', ')}, "
-            f"t={np.array2string(self.t, precision=4, separator=', ')}, "
-            f"size={np.array2string(self.size, precision=4, separator=', ')})"
-        )
+        R, t, size = (a.round(6).tolist() for a in (self.R, self.t, self.size))
+        return f"Pose9D(R={R}, t={t}, size={size})"
 
     # ----------------------------------------------------------------------------------------------------
     # Conversions
