@@ -87,7 +87,7 @@ class Pose9D:
     def from_matrix(cls, T_cam_obj: ArrayLike, size: ArrayLike) -> Pose9D:
         """Pose from a rigid transform `T_cam_obj` (4, 4) and full extents `size` (3,) [m]."""
         T = as_transform(T_cam_obj, "T_cam_obj")
-        return cls(T[:3, :3], T[:3, 3], size)
+        return cls(T[:3, :3], T[:3, 3], np.asarray(size, dtype=np.float64))
 
     def to_nocs_sRT(self) -> tuple[np.ndarray, np.ndarray]:
         """NOCS form: `sRT` (4, 4) with `sRT[:3, :3] = s R`, `sRT[:3, 3] = t`, `s = |size|` [m], and `scales`
