@@ -1,0 +1,596 @@
+"""Scenario files (YAML or JSON): parse and validate into a `SceneSpec`, then build a `SimWorld`.
+
+The format is DESIGN.md's "Sim scene file"; docs/sim.md documents every key. In short::
+
+    version: 1
+    name: tabletop_household
+    seed: 0                                   # random placements and appearances
+    robot: {model: ur5e, base_pose: {pos: [0, -0.45, 0.75]}}     # parsed and checked; built later
+    gripper: {type: parallel_jaw}                                # parallel_jaw | suction
+    supports:
+      - {name: table, type: table, size_m: [1.2, 0.8], height_m: 0.75}
+      - {name: bin, type: bin, on_top_of: table, at_m: [0.3, 0.2], inner_size_m: [0.4, 0.3],
+         wall_height_m: 0.12}
+    cameras:
+      - {name: front, pose: {pos: [0, -1, 1.5], look_at: [0, 0, 0.75]}, width: 640, height: 480,
+         fovy_deg: 58, noise: realsense}
+      - {name: wrist, mount: {body: flange, pose: {pos: [0, 0.08, 0.03]}},
+         stand_in_pose: {pos: [0, -0.2, 1.2], look_at: [0, 0, 0.75]}, width: 320, height: 240, fovy_deg: 70}
+    objects:
+      - name: mug
+        prompt: red mug
+        mesh: {family: mug, params: {radius_m: 0.04}}             # or a path, or {path, up_axis, category}
+        scale: [1, 1, 1]
+        rgba: [0.8, 0.1, 0.1, 1]                                  # or texture: checker | file.png | random
+        place: {support: table, region: {centre_m: [0, 0], half_extents_m: [0.3, 0.2]}}  # or pose: {...}
+    place_targets:
+      - {name: bin, support: bin}
+
+Relative paths (meshes, textures) are relative to the scene file. Unknown keys, families, support types, noise
+models, robots and grippers raise `UnknownNameError` listing the accepted names.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prompose_grasp.errors import InvalidInputError, UnknownNameError
+from prompose_grasp.geometry.se3 import R_from_quat_wxyz, make_T, random_rotation
+from sim.camera import CameraSpec, look_at
+from sim.noise import NOISE_PRESETS, noise_preset
+from sim.objects import FAMILIES, SYMMETRIES, ObjectAsset, load_mesh_object, make_object
+from sim.world import (
+    Appearance,
+    SceneBuilder,
+    SimWorld,
+    Support,
+    random_appearance,
+    sample_upright_placements,
+)
+
+__all__ = [
+    "GRIPPER_TYPES",
+    "ROBOT_MODELS",
+    "SceneSpec",
+    "build_scene",
+    "load_scene",
+    "load_world",
+    "parse_pose",
+    "parse_scene",
+]
+
+log = logging.getLogger(__name__)
+
+#: Robot models a scene may name (the UR family); the arm itself is attached by the robot layer.
+ROBOT_MODELS = ("ur3e", "ur5e", "ur10e", "ur16e", "ur5")
+#: Gripper types a scene may name.
+GRIPPER_TYPES = ("parallel_jaw", "suction")
+SUPPORT_TYPES = ("table", "bin", "conveyor", "pallet")
+SCENE_VERSION = 1
+
+_TOP_KEYS = (
+    "version", "name", "seed", "timestep_s", "robot", "gripper", "supports", "support", "cameras",
+    "objects", "place_targets", "lights", "headlight", "floor", "settle",
+)  # fmt: skip
+_SUPPORT_KEYS = {
+    "table": ("name", "type", "pose", "on_top_of", "at_m", "yaw_deg", "size_m", "height_m", "appearance"),
+    "bin": (
+        "name",
+        "type",
+        "pose",
+        "on_top_of",
+        "at_m",
+        "yaw_deg",
+        "inner_size_m",
+        "wall_height_m",
+        "wall_m",
+        "appearance",
+    ),
+    "conveyor": (
+        "name",
+        "type",
+        "pose",
+        "on_top_of",
+        "at_m",
+        "yaw_deg",
+        "length_m",
+        "width_m",
+        "height_m",
+        "appearance",
+    ),
+    "pallet": ("name", "type", "pose", "on_top_of", "at_m", "yaw_deg", "appearance"),
+}
+_CAMERA_KEYS = ("name", "pose", "mount", "stand_in_pose", "width", "height", "fovy_deg", "noise")
+_OBJECT_KEYS = (
+    "name", "prompt", "mesh", "scale", "rgba", "texture", "appearance", "pose", "place", "stack", "count",
+    "fixed", "density_kg_m3",
+)  # fmt: skip
+_PLACE_KEYS = ("support", "region", "orientation", "margin_m")
+_STACK_KEYS = ("support", "rows", "cols", "layers", "gap_m", "at_m")
+_POSE_KEYS = ("pos", "rpy_deg", "quat_wxyz", "look_at")
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """A parsed, validated scene file. `raw` keeps the document; `base_dir` resolves relative paths."""
+
+    name: str
+    seed: int
+    raw: Mapping[str, Any]
+    base_dir: Path
+    robot: Mapping[str, Any] | None = None
+    gripper: Mapping[str, Any] | None = None
+    supports: tuple[Mapping[str, Any], ...] = ()
+    cameras: tuple[Mapping[str, Any], ...] = ()
+    objects: tuple[Mapping[str, Any], ...] = ()
+    place_targets: tuple[Mapping[str, Any], ...] = ()
+    timestep_s: float = 0.002
+    settle: bool = True
+    extras: Mapping[str, Any] = field(default_factory=dict)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# parsing
+
+
+def _check_keys(d: Any, allowed: tuple[str, ...], where: str) -> Mapping[str, Any]:
+    if not isinstance(d, Mapping):
+        raise InvalidInputError(f"{where} must be a mapping, got {type(d).__name__}")
+    for key in d:
+        if key not in allowed:
+            raise UnknownNameError(f"key in {where}", key, allowed)
+    return d
+
+
+def _vec(x: Any, n: int, where: str) -> np.ndarray:
+    a = np.asarray(x, dtype=np.float64).reshape(-1)
+    if a.shape != (n,) or not np.all(np.isfinite(a)):
+        raise InvalidInputError(f"{where} must be {n} finite numbers, got {x!r}")
+    return a
+
+
+def _rpy_R(rpy_deg: np.ndarray) -> np.ndarray:
+    """Rotation of fixed-axis roll, pitch, yaw [deg]: R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    r, p, y = np.radians(rpy_deg)
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def parse_pose(d: Any, where: str, allow_look_at: bool = False) -> np.ndarray:
+    """(4, 4) transform from {pos, rpy_deg | quat_wxyz | look_at (cameras: OpenCV frame)}; metres, degrees."""
+    _check_keys(d, _POSE_KEYS if allow_look_at else _POSE_KEYS[:3], where)
+    pos = _vec(d.get("pos", (0.0, 0.0, 0.0)), 3, f"{where}.pos")
+    given = [k for k in ("rpy_deg", "quat_wxyz", "look_at") if k in d]
+    if len(given) > 1:
+        raise InvalidInputError(f"{where}: give one of rpy_deg, quat_wxyz, look_at, not {given}")
+    if "look_at" in d:
+        return look_at(pos, _vec(d["look_at"], 3, f"{where}.look_at"))
+    if "quat_wxyz" in d:
+        q = _vec(d["quat_wxyz"], 4, f"{where}.quat_wxyz")
+        if np.linalg.norm(q) < 1e-9:
+            raise InvalidInputError(f"{where}.quat_wxyz must not be zero")
+        return make_T(R_from_quat_wxyz(q), pos)
+    return make_T(_rpy_R(_vec(d.get("rpy_deg", (0.0, 0.0, 0.0)), 3, f"{where}.rpy_deg")), pos)
+
+
+def _parse_mesh(d: Any, where: str) -> Mapping[str, Any]:
+    if isinstance(d, str):
+        return {"path": d}
+    _check_keys(d, ("family", "params", "path", "up_axis", "category", "symmetry"), where)
+    if ("family" in d) == ("path" in d):
+        raise InvalidInputError(f"{where} needs exactly one of 'family' or 'path'")
+    if "family" in d:
+        if d["family"] not in FAMILIES:
+            raise UnknownNameError("object family", d["family"], sorted(FAMILIES))
+        params = d.get("params", {}) or {}
+        known = FAMILIES[d["family"]].ranges
+        for key in params:
+            if key not in known:
+                raise UnknownNameError(f"parameter of family {d['family']!r} in {where}", key, sorted(known))
+    if "symmetry" in d and d["symmetry"] not in SYMMETRIES:
+        raise UnknownNameError("symmetry", d["symmetry"], SYMMETRIES)
+    return d
+
+
+def parse_scene(doc: Mapping[str, Any], base_dir: str | Path = ".") -> SceneSpec:
+    """Validate a scene document (already loaded from YAML/JSON) into a `SceneSpec`."""
+    _check_keys(doc, _TOP_KEYS, "the scene")
+    version = doc.get("version", SCENE_VERSION)
+    if version != SCENE_VERSION:
+        raise InvalidInputError(f"scene version {version!r} is not supported; this reader knows version 1")
+    robot = doc.get("robot")
+    if robot is not None:
+        _check_keys(robot, ("model", "base_pose", "home_q_rad"), "robot")
+        if robot.get("model") not in ROBOT_MODELS:
+            raise UnknownNameError("robot", robot.get("model"), ROBOT_MODELS)
+        if "base_pose" in robot:
+            parse_pose(robot["base_pose"], "robot.base_pose")
+    gripper = doc.get("gripper")
+    if gripper is not None:
+        _check_keys(gripper, ("type",), "gripper")
+        if gripper.get("type") not in GRIPPER_TYPES:
+            raise UnknownNameError("gripper", gripper.get("type"), GRIPPER_TYPES)
+
+    supports = list(doc.get("supports", []) or [])
+    if "support" in doc:
+        supports.insert(0, doc["support"])
+    names: set[str] = set()
+    for i, s in enumerate(supports):
+        where = f"supports[{i}]"
+        if not isinstance(s, Mapping) or s.get("type") not in SUPPORT_TYPES:
+            raise UnknownNameError(
+                f"support type in {where}", getattr(s, "get", dict().get)("type"), SUPPORT_TYPES
+            )
+        _check_keys(s, _SUPPORT_KEYS[s["type"]], where)
+        if "pose" in s:
+            parse_pose(s["pose"], f"{where}.pose")
+        if "on_top_of" in s and s["on_top_of"] not in names:
+            raise UnknownNameError(
+                f"support named in {where}.on_top_of (declare it first)", s["on_top_of"], sorted(names)
+            )
+        names.add(s.get("name", s["type"]))
+
+    cameras = list(doc.get("cameras", []) or [])
+    for i, c in enumerate(cameras):
+        where = f"cameras[{i}]"
+        _check_keys(c, _CAMERA_KEYS, where)
+        if "name" not in c:
+            raise InvalidInputError(f"{where} needs a name")
+        if ("pose" in c) == ("mount" in c):
+            raise InvalidInputError(f"{where} needs exactly one of 'pose' (fixed) or 'mount' (wrist)")
+        if "pose" in c:
+            parse_pose(c["pose"], f"{where}.pose", allow_look_at=True)
+        else:
+            _check_keys(c["mount"], ("body", "pose"), f"{where}.mount")
+            parse_pose(c["mount"].get("pose", {}), f"{where}.mount.pose", allow_look_at=True)
+            if "stand_in_pose" in c:
+                parse_pose(c["stand_in_pose"], f"{where}.stand_in_pose", allow_look_at=True)
+        if "noise" in c:
+            noise_preset(c["noise"])
+
+    objects = list(doc.get("objects", []) or [])
+    for i, o in enumerate(objects):
+        where = f"objects[{i}]"
+        _check_keys(o, _OBJECT_KEYS, where)
+        if "name" not in o or "mesh" not in o:
+            raise InvalidInputError(f"{where} needs a name and a mesh")
+        _parse_mesh(o["mesh"], f"{where}.mesh")
+        placements = [k for k in ("pose", "place", "stack") if k in o]
+        if len(placements) != 1:
+            raise InvalidInputError(f"{where} needs exactly one of pose, place, stack; got {placements}")
+        if "pose" in o:
+            parse_pose(o["pose"], f"{where}.pose")
+        if "place" in o:
+            _check_keys(o["place"], _PLACE_KEYS, f"{where}.place")
+            if o["place"].get("support") not in names:
+                raise UnknownNameError(f"support in {where}.place", o["place"].get("support"), sorted(names))
+            if o["place"].get("orientation", "upright") not in ("upright", "random"):
+                raise UnknownNameError("orientation", o["place"]["orientation"], ("upright", "random"))
+            if "region" in o["place"]:
+                _check_keys(o["place"]["region"], ("centre_m", "half_extents_m"), f"{where}.place.region")
+        if "stack" in o:
+            _check_keys(o["stack"], _STACK_KEYS, f"{where}.stack")
+            if o["stack"].get("support") not in names:
+                raise UnknownNameError(f"support in {where}.stack", o["stack"].get("support"), sorted(names))
+        if "rgba" in o:
+            Appearance(rgba=tuple(_vec(o["rgba"], 4, f"{where}.rgba")))
+        if o.get("appearance", "random") != "random":
+            raise UnknownNameError(f"appearance in {where}", o["appearance"], ("random",))
+        if int(o.get("count", 1)) < 1:
+            raise InvalidInputError(f"{where}.count must be >= 1")
+
+    place_targets = list(doc.get("place_targets", []) or [])
+    for i, p in enumerate(place_targets):
+        _check_keys(p, ("name", "support"), f"place_targets[{i}]")
+        if p.get("support") not in names:
+            raise UnknownNameError(f"support in place_targets[{i}]", p.get("support"), sorted(names))
+
+    return SceneSpec(
+        name=str(doc.get("name", "scene")),
+        seed=int(doc.get("seed", 0)),
+        raw=doc,
+        base_dir=Path(base_dir),
+        robot=robot,
+        gripper=gripper,
+        supports=tuple(supports),
+        cameras=tuple(cameras),
+        objects=tuple(objects),
+        place_targets=tuple(place_targets),
+        timestep_s=float(doc.get("timestep_s", 0.002)),
+        settle=bool(doc.get("settle", True)),
+        extras={k: doc[k] for k in ("lights", "headlight", "floor") if k in doc},
+    )
+
+
+def load_scene(path: str | Path) -> SceneSpec:
+    """Read a YAML (.yaml/.yml) or JSON (.json) scene file and validate it."""
+    p = Path(path)
+    if not p.is_file():
+        raise InvalidInputError(f"scene file {str(p)!r} does not exist")
+    text = p.read_text()
+    if p.suffix.lower() == ".json":
+        doc = json.loads(text)
+    elif p.suffix.lower() in (".yaml", ".yml"):
+        import yaml
+
+        doc = yaml.safe_load(text)
+    else:
+        raise UnknownNameError("scene file extension", p.suffix, (".yaml", ".yml", ".json"))
+    return parse_scene(doc, base_dir=p.parent)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# building
+
+
+def _resolve(base: Path, path: str) -> str:
+    p = Path(path).expanduser()
+    return str(p if p.is_absolute() else (base / p))
+
+
+def _asset(o: Mapping[str, Any], base: Path, rng: np.random.Generator) -> ObjectAsset:
+    mesh = _parse_mesh(o["mesh"], "mesh")
+    scale = np.broadcast_to(np.asarray(o.get("scale", 1.0), dtype=np.float64), (3,))
+    if "family" in mesh:
+        asset = make_object(mesh["family"], mesh.get("params") or {}, rng=rng)
+        if np.allclose(scale, 1.0):
+            return asset
+        parts = [m.copy() for m in asset.parts]
+        cols = [m.copy() for m in asset.collision]
+        for m in (*parts, *cols):
+            m.vertices = m.vertices * scale
+        return ObjectAsset(
+            asset.category,
+            tuple(parts),
+            tuple(cols),
+            asset.size * scale,
+            asset.symmetry,
+            asset.params,
+            asset.source,
+        )
+    return load_mesh_object(
+        _resolve(base, mesh["path"]),
+        scale=scale,
+        up_axis=mesh.get("up_axis", "y"),
+        category=mesh.get("category"),
+        symmetry=mesh.get("symmetry", "none"),
+    )
+
+
+def _appearance(o: Mapping[str, Any], base: Path, rng: np.random.Generator) -> Appearance:
+    if "rgba" in o or "texture" in o:
+        texture = o.get("texture")
+        if texture is not None and texture not in ("checker", "gradient", "flat", "noise"):
+            texture = _resolve(base, texture)
+        rgba = tuple(float(x) for x in o.get("rgba", (0.8, 0.8, 0.8, 1.0)))
+        return Appearance(rgba=rgba, texture=texture)  # type: ignore[arg-type]
+    return random_appearance(rng)
+
+
+def _support_base(s: Mapping[str, Any], built: Mapping[str, Support]) -> np.ndarray:
+    if "pose" in s:
+        return parse_pose(s["pose"], "support.pose")
+    yaw = math.radians(float(s.get("yaw_deg", 0.0)))
+    at = _vec(s.get("at_m", (0.0, 0.0)), 2, "support.at_m")
+    local = make_T(_rpy_R(np.array([0.0, 0.0, math.degrees(yaw)])), [at[0], at[1], 0.0])
+    if "on_top_of" in s:
+        return built[s["on_top_of"]].T_world_surface @ local
+    return local
+
+
+def build_scene(spec: SceneSpec, seed: int | None = None, settle: bool | None = None) -> SimWorld:
+    """Build and compile the scene; random placements and appearances draw from `seed` (default: the file's).
+
+    Objects placed with `place`/`stack` start just above their support; with `settle` (default: the file's,
+    true) the physics runs until they rest, so ground truth is taken of a resting scene.
+    """
+    rng = np.random.default_rng(spec.seed if seed is None else seed)
+    b = SceneBuilder(spec.name, timestep_s=spec.timestep_s)
+    floor = spec.extras.get("floor", True)
+    if floor:
+        b.add_floor()
+        b.add_skybox()
+    for light in spec.extras.get("lights", None) or [
+        {"pos": [0.6, -0.8, 2.6], "dir": [-0.2, 0.3, -1.0], "diffuse": 0.55},
+        {"pos": [-0.8, 0.6, 2.4], "dir": [0.3, -0.2, -1.0], "diffuse": 0.3, "castshadow": False},
+    ]:
+        _check_keys(light, ("pos", "dir", "diffuse", "castshadow"), "lights[]")
+        b.add_light(
+            light["pos"],
+            light.get("dir", (0, 0, -1)),
+            light.get("diffuse", 0.6),
+            castshadow=light.get("castshadow", True),
+        )
+    if "headlight" in spec.extras:
+        h = _check_keys(spec.extras["headlight"], ("ambient", "diffuse"), "headlight")
+        b.set_headlight(float(h.get("ambient", 0.25)), float(h.get("diffuse", 0.35)))
+
+    supports: dict[str, Support] = {}
+    for s in spec.supports:
+        kind, name = s["type"], s.get("name", s["type"])
+        T = _support_base(s, supports)
+        app = None
+        if "appearance" in s:
+            a = s["appearance"]
+            app = random_appearance(rng, kind="table") if a == "random" else Appearance(**a)
+        if kind == "table":
+            size = s.get("size_m", (1.2, 0.8))
+            supports[name] = b.add_table(name, tuple(size), float(s.get("height_m", 0.75)), T, appearance=app)
+        elif kind == "bin":
+            supports[name] = b.add_bin(
+                name, tuple(s.get("inner_size_m", (0.4, 0.3))), float(s.get("wall_height_m", 0.15)),
+                float(s.get("wall_m", 0.01)), T, appearance=app,
+            )  # fmt: skip
+        elif kind == "conveyor":
+            supports[name] = b.add_conveyor(
+                name,
+                float(s.get("length_m", 2.0)),
+                float(s.get("width_m", 0.5)),
+                float(s.get("height_m", 0.8)),
+                T,
+                appearance=app,
+            )
+        else:
+            supports[name] = b.add_pallet(name, T, appearance=app)
+
+    # Objects: explicit poses, stacks, then random placements grouped per support so they never overlap.
+    groups: dict[tuple[str, str], list[tuple[str, ObjectAsset, Mapping[str, Any]]]] = {}
+    drops: list[tuple[str, ObjectAsset, Mapping[str, Any]]] = []
+    for o in spec.objects:
+        count = int(o.get("count", 1))
+        stack = o.get("stack")
+        n = (
+            count
+            if stack is None
+            else int(stack.get("rows", 1)) * int(stack.get("cols", 1)) * int(stack.get("layers", 1))
+        )
+        shared = _asset(o, spec.base_dir, rng) if stack is not None else None
+        for k in range(n):
+            name = o["name"] if n == 1 else f"{o['name']}_{k}"
+            asset = shared if shared is not None else _asset(o, spec.base_dir, rng)
+            if "pose" in o:
+                T = parse_pose(o["pose"], "object.pose")
+                b.add_object(
+                    asset,
+                    name,
+                    T,
+                    o.get("prompt"),
+                    _appearance(o, spec.base_dir, rng),
+                    bool(o.get("fixed", False)),
+                )
+            elif stack is not None:
+                T = _stack_pose(asset, supports[stack["support"]], stack, k)
+                b.add_object(
+                    asset,
+                    name,
+                    T,
+                    o.get("prompt"),
+                    _appearance(o, spec.base_dir, rng),
+                    bool(o.get("fixed", False)),
+                )
+            elif o["place"].get("orientation", "upright") == "random":
+                drops.append((name, asset, o))
+            else:
+                key = (o["place"]["support"], json.dumps(o["place"].get("region"), sort_keys=True))
+                groups.setdefault(key, []).append((name, asset, o))
+    for (support_name, _), items in groups.items():
+        region = items[0][2]["place"].get("region") or {}
+        margin = float(items[0][2]["place"].get("margin_m", 0.01))
+        poses = sample_upright_placements(
+            [a for _, a, _ in items],
+            supports[support_name],
+            rng,
+            margin_m=margin,
+            region_half_extents_m=region.get("half_extents_m"),
+            region_centre_m=region.get("centre_m", (0.0, 0.0)),
+            clearance_m=0.001,
+        )
+        for (name, asset, o), T in zip(items, poses):
+            b.add_object(
+                asset,
+                name,
+                T,
+                o.get("prompt"),
+                _appearance(o, spec.base_dir, rng),
+                bool(o.get("fixed", False)),
+            )
+    # Random orientations (bin clutter): bounding spheres packed low into the container, layer by layer, so
+    # objects start close to their resting place and nothing is thrown out of the bin.
+    spheres: dict[str, list[tuple[np.ndarray, float]]] = {}
+    for name, asset, o in drops:
+        sup = supports[o["place"]["support"]]
+        region = o["place"].get("region") or {}
+        half = np.asarray(region.get("half_extents_m", sup.half_extents_xy_m), dtype=np.float64)
+        centre = np.asarray(region.get("centre_m", (0.0, 0.0)), dtype=np.float64)
+        radius = 0.5 * float(np.linalg.norm(asset.size))
+        lim = np.maximum(half - radius, 0.0)
+        taken = spheres.setdefault(sup.name, [])
+        z = radius + 0.002
+        while True:
+            candidates = [np.array([*(centre + rng.uniform(-lim, lim)), z]) for _ in range(30)]
+            free = [
+                c for c in candidates if all(np.linalg.norm(c - p) >= radius + rp + 0.002 for p, rp in taken)
+            ]
+            if free:
+                break
+            z += 0.5 * radius
+        taken.append((free[0], radius))
+        T_local = make_T(random_rotation(rng), free[0])
+        b.add_object(
+            asset, name, sup.T_world_surface @ T_local, o.get("prompt"), _appearance(o, spec.base_dir, rng)
+        )
+
+    for c in spec.cameras:
+        noise = NOISE_PRESETS[c.get("noise", "clean")]
+        size = dict(
+            width=int(c.get("width", 640)),
+            height=int(c.get("height", 480)),
+            fovy_deg=float(c.get("fovy_deg", 58.0)),
+        )
+        if "pose" in c:
+            b.add_camera(
+                CameraSpec(
+                    c["name"], T_parent_cam=parse_pose(c["pose"], "camera.pose", True), noise=noise, **size
+                )
+            )
+        else:
+            body = c["mount"].get("body", "flange")
+            if b.spec.body(body) is None:
+                stand_in = parse_pose(c.get("stand_in_pose", {"pos": [0.0, 0.0, 1.2]}), "stand_in_pose", True)
+                log.info(
+                    "camera %r: body %r is not in the scene yet; a mocap stand-in carries it", c["name"], body
+                )
+                b.add_mount_body(body, stand_in)
+            T_body_cam = parse_pose(c["mount"].get("pose", {}), "mount.pose", True)
+            b.add_camera(
+                CameraSpec(c["name"], T_parent_cam=T_body_cam, parent_body=body, noise=noise, **size)
+            )
+    for p in spec.place_targets:
+        b.add_place_target(p["name"], supports[p["support"]])
+    if spec.robot is not None:
+        log.info(
+            "scene %r names robot %r and gripper %r; the robot layer attaches them (not built here)",
+            spec.name,
+            spec.robot.get("model"),
+            (spec.gripper or {}).get("type"),
+        )
+
+    world = b.build()
+    if spec.settle if settle is None else settle:
+        world.settle()
+    return world
+
+
+def _stack_pose(asset: ObjectAsset, support: Support, stack: Mapping[str, Any], k: int) -> np.ndarray:
+    """Pose of the k-th box of a rows x cols x layers stack centred on the support (row-major, bottom up)."""
+    rows, cols = int(stack.get("rows", 1)), int(stack.get("cols", 1))
+    gap = float(stack.get("gap_m", 0.005))
+    at = np.asarray(stack.get("at_m", (0.0, 0.0)), dtype=np.float64)
+    layer, rem = divmod(k, rows * cols)
+    r, c = divmod(rem, cols)
+    sx, sy, sz = asset.size[0] + gap, asset.size[2] + gap, asset.size[1]
+    x = at[0] + (c - (cols - 1) / 2.0) * sx
+    y = at[1] + (r - (rows - 1) / 2.0) * sy
+    R_up = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # obj +y -> surface +z
+    t = np.array([x, y, layer * (sz + 0.001) + sz / 2.0 + 0.001])
+    if abs(x) + asset.size[0] / 2 > support.half_extents_xy_m[0] + 0.05 or abs(y) + asset.size[2] / 2 > (
+        support.half_extents_xy_m[1] + 0.05
+    ):
+        log.warning("stack on %r overhangs the support by more than 5 cm", support.name)
+    return support.T_world_surface @ make_T(R_up, t)
+
+
+def load_world(path: str | Path, seed: int | None = None, settle: bool | None = None) -> SimWorld:
+    """`build_scene(load_scene(path), seed, settle)`."""
+    return build_scene(load_scene(path), seed=seed, settle=settle)
