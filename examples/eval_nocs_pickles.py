@@ -48,8 +48,9 @@ def make_image(num_objects: int) -> dict:
             "xy", [180 + rng.uniform(-20, 20), rng.uniform(0, 360)], degrees=True
         ).as_matrix()
         t = np.array([rng.uniform(-0.2, 0.2), rng.uniform(0.0, 0.1), rng.uniform(0.6, 1.0)])
-        scale = rng.uniform(0.1, 0.25)  # [m]: the NOCS box diagonal is 1, so this is about the object's size
         scales = rng.uniform(0.3, 0.9, 3)
+        scales /= np.linalg.norm(scales)  # NOCS box extents: the box diagonal is 1
+        scale = rng.uniform(0.12, 0.3)  # s: the metric box diagonal [m]; the metric size is s * scales
         gt_ids.append(class_id)
         gt_RTs.append(make_sRT(scale, R, t))
         gt_scales.append(scales)
