@@ -45,3 +45,7 @@ class UnreachableError(PromposeError):
 
 class CameraError(PromposeError):
     """A camera failed to deliver a frame."""
+
+
+class DeviceNotConnectedError(PromposeError, RuntimeError):
+    """A device (arm, gripper, camera) was used before `connect()` or after `disconnect()`."""

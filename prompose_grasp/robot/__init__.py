@@ -1,0 +1,54 @@
+"""Robot layer: UR arms from one DH table, FK/IK (closed form, mink, Pinocchio), device interfaces.
+
+>>> from prompose_grasp.robot import load_robot
+>>> robot = load_robot("ur5e", tcp_offset=[0.0, 0.0, 0.15])  # doctest: +SKIP
+>>> result = robot.ik(robot.fk_tcp(q), q_seed=q_now, frame="tcp")  # doctest: +SKIP
+"""
+
+from prompose_grasp.robot.fake import HOME_Q, FakeArm, FakeGripper
+from prompose_grasp.robot.ik import IK_METHODS, IKConfig, IKResult
+from prompose_grasp.robot.interfaces import (
+    Arm,
+    Device,
+    Gripper,
+    JointCommand,
+    JointTrajectory,
+    LinearCommand,
+    RGBDCamera,
+    RGBDFrame,
+)
+from prompose_grasp.robot.model import RobotModel, load_robot
+from prompose_grasp.robot.mujoco_model import add_arm_to_spec, add_support_plane, ur_mjspec
+from prompose_grasp.robot.ur_models import JOINT_NAMES, UR_MODELS, URSpec, get_ur_spec, known_robots
+from prompose_grasp.robot.urdf import ur_urdf
+from prompose_grasp.robot.validator import CommandValidator, ValidatorConfig
+
+__all__ = [
+    "HOME_Q",
+    "IK_METHODS",
+    "JOINT_NAMES",
+    "UR_MODELS",
+    "Arm",
+    "CommandValidator",
+    "Device",
+    "FakeArm",
+    "FakeGripper",
+    "Gripper",
+    "IKConfig",
+    "IKResult",
+    "JointCommand",
+    "JointTrajectory",
+    "LinearCommand",
+    "RGBDCamera",
+    "RGBDFrame",
+    "RobotModel",
+    "URSpec",
+    "ValidatorConfig",
+    "add_arm_to_spec",
+    "add_support_plane",
+    "get_ur_spec",
+    "known_robots",
+    "load_robot",
+    "ur_mjspec",
+    "ur_urdf",
+]

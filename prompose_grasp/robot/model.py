@@ -8,6 +8,8 @@ UR's DH convention exactly, so for a zero TCP offset it equals the controller's 
 from __future__ import annotations
 
 import logging
+import time
+from dataclasses import replace
 from functools import cached_property
 from typing import Literal
 
@@ -223,6 +225,7 @@ class RobotModel:
             `IKResult`; `success` is False (with a `message`) for unreachable, out-of-limit or colliding targets,
             never a configuration that misses the target.
         """
+        t0 = time.perf_counter()
         _ik.check_method(method)
         seed = np.zeros(6) if q_seed is None else self._q(q_seed, "q_seed")
         solve = _ik._Solve(self, self._target_flange(T_base_target, frame), seed, config or self.ik_config)
@@ -233,13 +236,10 @@ class RobotModel:
                 self._solvers[method] = _ik.MinkIK(self) if method == "mink" else _ik.PinocchioCLIK(self)
             result = self._solvers[method].solve(solve)  # type: ignore[attr-defined]
         if frame == TCP_NAME:
-            # Errors were measured at the flange; a rigid offset keeps the rotation error but not the position one.
-            T_reached = self.fk_tcp(result.q)
-            pos, rot = _ik.pose_errors(T_reached, as_transform(T_base_target))
-            result = _ik.IKResult(
-                result.q, result.success, pos, rot, result.iterations, result.solve_time_s, result.method, result.message
-            )
-        return result
+            # Errors were measured at the flange; a rigid offset keeps the rotation error, not the position one.
+            pos, rot = _ik.pose_errors(self.fk_tcp(result.q), as_transform(T_base_target))
+            result = replace(result, position_error_m=pos, rotation_error_rad=rot)
+        return replace(result, solve_time_s=time.perf_counter() - t0)
 
     def ik_all(
         self, T_base_target: ArrayLike, q_seed: ArrayLike | None = None, frame: Frame = "flange"

@@ -239,8 +239,8 @@ def urdf_from_description(desc: ArmDescription) -> str:
         ET.SubElement(el, "parent", link=joint.parent)
         ET.SubElement(el, "child", link=joint.child)
         ET.SubElement(el, "origin", xyz=_fmt(joint.xyz), rpy=_fmt(joint.rpy))
+        ET.SubElement(el, "axis", xyz=_fmt(joint.axis))  # ignored on fixed joints; written so it round-trips
         if joint.type == "revolute":
-            ET.SubElement(el, "axis", xyz=_fmt(joint.axis))
             ET.SubElement(
                 el,
                 "limit",

@@ -1,0 +1,181 @@
+"""Hardware-neutral interfaces: `Arm`, `Gripper`, `RGBDCamera`, and the values they exchange.
+
+`SimArm` (sim/), `URRtdeArm` (hardware/) and `FakeArm` (robot/fake.py) implement `Arm`; each runs every motion
+command through the shared `CommandValidator` before acting and returns the command it actually sent. All three
+devices are context managers: ``with arm: ...`` connects and always disconnects.
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+from types import TracebackType
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from prompose_grasp.errors import InvalidInputError
+from prompose_grasp.geometry.camera import CameraIntrinsics
+from prompose_grasp.geometry.se3 import as_transform
+
+
+@dataclass(frozen=True)
+class JointTrajectory:
+    """Timed joint waypoints.
+
+    Attributes:
+        t_s: (N,) float64 strictly increasing times from the start of the motion [s]; t_s[0] >= 0.
+        q: (N, 6) float64 joint positions [rad].
+    """
+
+    t_s: np.ndarray
+    q: np.ndarray
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t_s, dtype=np.float64)
+        q = np.asarray(self.q, dtype=np.float64)
+        if t.ndim != 1 or q.shape != (t.shape[0], 6) or t.shape[0] < 1:
+            raise InvalidInputError(f"JointTrajectory needs t_s (N,) and q (N, 6), N >= 1; got {t.shape}, {q.shape}")
+        if not np.all(np.isfinite(t)) or t[0] < 0 or np.any(np.diff(t) <= 0):
+            raise InvalidInputError("JointTrajectory.t_s must be finite, >= 0 and strictly increasing [s]")
+        object.__setattr__(self, "t_s", t)
+        object.__setattr__(self, "q", q)
+
+    def __len__(self) -> int:
+        return int(self.t_s.shape[0])
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_s[-1])
+
+
+@dataclass(frozen=True)
+class JointCommand:
+    """A validated joint move, as sent: target q (6,) [rad], speed [rad/s], acceleration [rad/s^2]."""
+
+    q: np.ndarray
+    speed_rad_s: float
+    accel_rad_s2: float
+
+
+@dataclass(frozen=True)
+class LinearCommand:
+    """A validated straight-line TCP move, as sent: T_base_tcp (4, 4), speed [m/s], acceleration [m/s^2]."""
+
+    T_base_tcp: np.ndarray
+    speed_m_s: float
+    accel_m_s2: float
+
+
+@dataclass(frozen=True)
+class RGBDFrame:
+    """One RGB-D capture, depth registered to the colour image.
+
+    Attributes:
+        rgb: (H, W, 3) uint8.
+        depth_m: (H, W) float32 depth along the optical axis [m]; 0 or NaN where there is no reading.
+        intrinsics: pinhole intrinsics of both images (H = intrinsics.height, W = intrinsics.width).
+        timestamp_s: capture time [s] (device or sim clock).
+        T_base_cam: (4, 4) camera pose in the robot base frame (OpenCV camera axes) where known, else None.
+    """
+
+    rgb: np.ndarray
+    depth_m: np.ndarray
+    intrinsics: CameraIntrinsics
+    timestamp_s: float
+    T_base_cam: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        h, w = self.intrinsics.height, self.intrinsics.width
+        rgb, depth = np.asarray(self.rgb), np.asarray(self.depth_m)
+        if rgb.shape != (h, w, 3) or rgb.dtype != np.uint8:
+            raise InvalidInputError(f"rgb must be ({h}, {w}, 3) uint8, got {rgb.shape} {rgb.dtype}")
+        if depth.shape != (h, w) or depth.dtype != np.float32:
+            raise InvalidInputError(f"depth_m must be ({h}, {w}) float32 metres, got {depth.shape} {depth.dtype}")
+        if not np.isfinite(self.timestamp_s):
+            raise InvalidInputError("timestamp_s must be finite")
+        if self.T_base_cam is not None:
+            object.__setattr__(self, "T_base_cam", as_transform(self.T_base_cam, "T_base_cam"))
+
+
+class Device(abc.ABC):
+    """Something that connects: `connect()` / `disconnect()`, usable as a context manager."""
+
+    @abc.abstractmethod
+    def connect(self) -> None:
+        """Open the connection; raises a `PromposeError` subclass when the device cannot be reached."""
+
+    @abc.abstractmethod
+    def disconnect(self) -> None:
+        """Close the connection; safe to call twice."""
+
+    @property
+    @abc.abstractmethod
+    def is_connected(self) -> bool: ...
+
+    def __enter__(self):
+        self.connect()
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.disconnect()
+
+
+class Arm(Device):
+    """A 6-axis arm. Poses are in `base` (the controller's base frame); joints in [rad]."""
+
+    @abc.abstractmethod
+    def joint_positions(self) -> np.ndarray:
+        """(6,) float64 current joint positions [rad]."""
+
+    @abc.abstractmethod
+    def tcp_pose(self) -> np.ndarray:
+        """(4, 4) current T_base_tcp."""
+
+    @abc.abstractmethod
+    def move_joints(self, q: ArrayLike, speed: float, accel: float) -> JointCommand:
+        """Move to joint target q (6,) [rad] at joint speed [rad/s] and acceleration [rad/s^2]; blocks until done.
+
+        Returns the validated command that was sent; raises `UnsafeCommandError` without moving when refused."""
+
+    @abc.abstractmethod
+    def move_linear(self, T_base_tcp: ArrayLike, speed: float, accel: float) -> LinearCommand:
+        """Move the TCP along a straight line to T_base_tcp (4, 4) at speed [m/s], acceleration [m/s^2]."""
+
+    @abc.abstractmethod
+    def follow(self, trajectory: JointTrajectory) -> JointTrajectory:
+        """Stream a timed joint trajectory; returns the validated trajectory that was sent."""
+
+    @abc.abstractmethod
+    def stop(self) -> None:
+        """Decelerate to a stop now (also from another thread while a move blocks)."""
+
+
+class Gripper(Device):
+    """A gripper: parallel jaw, vacuum, ... `width()` is the jaw opening [m] (0 for a closed or suction tool)."""
+
+    @abc.abstractmethod
+    def open(self) -> None:
+        """Open fully (or release the vacuum)."""
+
+    @abc.abstractmethod
+    def close(self, force: float) -> bool:
+        """Close with a grip force [N] (or apply vacuum); returns `grasp_detected()` after closing."""
+
+    @abc.abstractmethod
+    def grasp_detected(self) -> bool:
+        """True when an object is held (jaws stopped on an object, or vacuum established)."""
+
+    @abc.abstractmethod
+    def width(self) -> float:
+        """Current opening [m]."""
+
+
+class RGBDCamera(Device):
+    """An RGB-D camera with depth registered to colour."""
+
+    @abc.abstractmethod
+    def capture(self) -> RGBDFrame:
+        """The next frame; raises `CameraError` when none arrives."""
