@@ -178,19 +178,21 @@ def _exact_iou_matrix(
 ) -> np.ndarray:
     s_p, R_p, t_p = split_sRT(pred_sRT)
     s_g, R_g, t_g = split_sRT(gt_sRT)
-    out = np.zeros((len(pred_sRT), len(gt_sRT)))
+    # float32 storage leaves R = M / s a few 1e-8 off orthonormal, and a method may store a slightly
+    # non-similarity M: the oriented box takes the nearest rotation.
+    R_p = np.array([project_to_so3(R) for R in R_p])
+    R_g = np.array([project_to_so3(R) for R in R_g])
+    size_p, size_g = s_p[:, None] * pred_scales, s_g[:, None] * gt_scales
     # A box is its own image under a half turn about its y axis, so rotations k and k + 10 (of 20) give the
     # same box and the same IoU: try only the first half.
     half_turns = _Y_ROTATIONS_H[: NUM_SYMMETRY_ROTATIONS // 2, :3, :3]
+    out = np.zeros((len(pred_sRT), len(gt_sRT)))
     for i in range(len(pred_sRT)):
-        R_i = project_to_so3(R_p[i])  # float32 storage leaves R = M / s a few 1e-8 off orthonormal
-        size_i = s_p[i] * pred_scales[i]
         for j in range(len(gt_sRT)):
-            R_j = project_to_so3(R_g[j])
-            size_j = s_g[j] * gt_scales[j]
             rotations = half_turns if y_sym[j] else half_turns[:1]
             out[i, j] = max(
-                oriented_box_iou(R_i @ Ry, t_p[i], size_i, R_j, t_g[j], size_j) for Ry in rotations
+                oriented_box_iou(R_p[i] @ Ry, t_p[i], size_p[i], R_g[j], t_g[j], size_g[j])
+                for Ry in rotations
             )
     return out
 
@@ -248,7 +250,7 @@ def nocs_box_iou(
             "pred_RTs": [sRT_pred],
             "pred_scales": [scales_pred],
         },
-        where="nocs_box_iou",
+        where="nocs_box_iou (pred_RTs / pred_scales = sRT_pred / scales_pred, gt_* = sRT_gt / scales_gt)",
     )
     y_sym = np.array([bool(y_symmetric)])
     iou = _iou_matrix(image.pred_sRT, image.pred_scales, image.gt_sRT, image.gt_scales, y_sym, iou_mode)
@@ -297,7 +299,7 @@ def nocs_pose_error(
             "pred_RTs": [sRT_pred],
             "pred_scales": [[1.0, 1.0, 1.0]],
         },
-        where="nocs_pose_error",
+        where="nocs_pose_error (pred_RTs = sRT_pred, gt_RTs = sRT_gt)",
     )
     deg, cm = _pose_errors(image.pred_sRT, image.gt_sRT, np.array([bool(y_symmetric)]))
     return float(deg[0, 0]), float(cm[0, 0])
