@@ -194,12 +194,13 @@ def _looks_like_result(obj: Any) -> bool:
 
 def _read_pickle(path: Path) -> Any:
     try:
-        with open(path, "rb") as f:
-            return pickle.load(f)
-    except UnicodeDecodeError:
-        # Pickles written by Python 2 store numpy buffers as str; latin1 maps their bytes one to one.
-        with open(path, "rb") as f:
-            return pickle.load(f, encoding="latin1")
+        try:
+            with open(path, "rb") as f:
+                return pickle.load(f)
+        except UnicodeDecodeError:
+            # Pickles written by Python 2 store numpy buffers as str; latin1 maps their bytes one to one.
+            with open(path, "rb") as f:
+                return pickle.load(f, encoding="latin1")
     except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, IndexError, ValueError) as exc:
         raise InvalidInputError(f"{path}: not a readable pickle ({type(exc).__name__}: {exc})") from exc
 
