@@ -3,9 +3,11 @@
     python -m prompose_grasp.robot.bench [--n 500] [--models ur5e ur10e] [--json OUT.json]
 
 Protocol: targets are the flange poses of configurations drawn uniformly within the joint limits (so every
-target is reachable); each solve gets an independent random in-limit seed (the "current configuration"). A solve
+target is reachable); each solve gets an independent random in-limit seed (the "current configuration"). A
+solve
 counts as a success only when the solver says so *and* closed-form forward kinematics of its answer is within
-1 mm and 0.1 deg of the target; a claimed success outside that is counted separately as `wrong` (it must be 0).
+1 mm and 0.1 deg of the target; a claimed success outside that is counted separately as `wrong` (it must be
+0).
 Unreachable targets (poses beyond the arm's reach) check that the solver fails cleanly. Times are per solve,
 single thread, seeding included: CPU time of the solving thread (`time.thread_time`, immune to other processes
 on a shared machine) and wall-clock time (what a caller waits, including preemption).
@@ -23,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from prompose_grasp.geometry.se3 import make_T, random_rotation
-from prompose_grasp.robot.ik import IKConfig, batch_fk_errors
+from prompose_grasp.robot.ik import IKConfig, IKMethod, batch_fk_errors
 from prompose_grasp.robot.model import RobotModel, load_robot
 from prompose_grasp.robot.ur_models import known_robots
 
@@ -34,7 +36,7 @@ ROTATION_TARGET_RAD = np.deg2rad(0.1)
 @dataclass(frozen=True)
 class Variant:
     label: str
-    method: str
+    method: IKMethod
     config: IKConfig
 
 
@@ -73,18 +75,20 @@ def run_variant(robot: RobotModel, variant: Variant, n: int, seed: int) -> dict:
     iterations = np.empty(n)
     for i in range(n):
         cpu0 = time.thread_time()
-        result = robot.ik(targets[i], q_seed=q_seed[i], method=variant.method, config=variant.config)  # type: ignore[arg-type]
+        result = robot.ik(targets[i], q_seed=q_seed[i], method=variant.method, config=variant.config)
         cpu_times[i] = time.thread_time() - cpu0
-        Q[i], claimed[i], times[i], iterations[i] = result.q, result.success, result.solve_time_s, result.iterations
+        Q[i], claimed[i], times[i], iterations[i] = (
+            result.q,
+            result.success,
+            result.solve_time_s,
+            result.iterations,
+        )
     pos, rot = batch_fk_errors(robot, Q, targets)
     within = (pos <= POSITION_TARGET_M) & (rot <= ROTATION_TARGET_RAD)
     success = claimed & within
 
     unreachable = _unreachable_targets(robot, np.random.default_rng(seed + 1), max(20, n // 10))
-    refused = sum(
-        not robot.ik(T, method=variant.method, config=variant.config).success  # type: ignore[arg-type]
-        for T in unreachable
-    )
+    refused = sum(not robot.ik(T, method=variant.method, config=variant.config).success for T in unreachable)
     ok_pos, ok_rot = pos[success], rot[success]
     return {
         "model": robot.name,
@@ -108,7 +112,8 @@ def run_variant(robot: RobotModel, variant: Variant, n: int, seed: int) -> dict:
 
 def format_table(rows: list[dict]) -> str:
     header = (
-        "| model | method | n | success | wrong | pos err p50 / max | rot err p50 / max | CPU time p50 / p95 / p99 "
+        "| model | method | n | success | wrong | pos err p50 / max | rot err p50 / max "
+        "| CPU time p50 / p95 / p99 "
         "| wall p50 / p95 | iters | unreachable refused |\n|---|---|---|---|---|---|---|---|---|---|---|"
     )
     lines = [header]
@@ -116,7 +121,8 @@ def format_table(rows: list[dict]) -> str:
         lines.append(
             f"| {r['model']} | {r['method']} | {r['n']} | {100 * r['success_rate']:.1f} % | {r['wrong']} "
             f"| {r['position_error_m_p50']:.1e} / {r['position_error_m_max']:.1e} m "
-            f"| {np.rad2deg(r['rotation_error_rad_p50']):.1e} / {np.rad2deg(r['rotation_error_rad_max']):.1e} deg "
+            f"| {np.rad2deg(r['rotation_error_rad_p50']):.1e} / "
+            f"{np.rad2deg(r['rotation_error_rad_max']):.1e} deg "
             f"| {r['cpu_ms_p50']:.2f} / {r['cpu_ms_p95']:.2f} / {r['cpu_ms_p99']:.2f} ms "
             f"| {r['time_ms_p50']:.2f} / {r['time_ms_p95']:.2f} ms "
             f"| {r['iterations_mean']:.1f} | {r['unreachable_refused']} |"
@@ -125,7 +131,9 @@ def format_table(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--n", type=int, default=500, help="reachable targets per model and method")
     parser.add_argument("--models", nargs="+", default=list(known_robots()), choices=known_robots())
     parser.add_argument(
@@ -144,7 +152,8 @@ def main(argv: list[str] | None = None) -> int:
             robot.ik(robot.fk(np.zeros(6)), method=variant.method)  # build the solver outside the timing
             rows.append(run_variant(robot, variant, args.n, args.seed))
             print(f"  {name:6s} {variant.label:32s} done ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
-    machine = f"{platform.processor() or platform.machine()}, {platform.python_implementation()} {platform.python_version()}"
+    cpu = platform.processor() or platform.machine()
+    machine = f"{cpu}, {platform.python_implementation()} {platform.python_version()}"
     print(f"IK benchmark, {args.n} reachable targets per row, seed {args.seed}; {machine}")
     print(format_table(rows))
     if args.json_path:

@@ -1,7 +1,8 @@
 """`FakeArm` and `FakeGripper`: in-memory devices for tests and dry runs.
 
 They behave like a real backend at the interface: every command goes through the `CommandValidator`, a refused
-command leaves the state untouched, and what was sent is both returned and recorded in `sent`. Motions complete
+command leaves the state untouched, and what was sent is both returned and recorded in `sent`. Motions
+complete
 instantly (no dynamics); `move_linear` uses the closed-form IK nearest the current configuration.
 """
 
@@ -99,7 +100,8 @@ class FakeArm(Arm):
 
 
 class FakeGripper(Gripper):
-    """A parallel-jaw gripper. Closing stops on an object of `object_width_m` (None: nothing between the jaws).
+    """A parallel-jaw gripper. Closing stops on an object of `object_width_m` (None: nothing between the
+    jaws).
 
     Attributes:
         max_width_m: full opening [m].
@@ -134,7 +136,9 @@ class FakeGripper(Gripper):
 
     def _require(self) -> None:
         if not self._connected:
-            raise DeviceNotConnectedError("FakeGripper is not connected; call connect() or use `with gripper:`")
+            raise DeviceNotConnectedError(
+                "FakeGripper is not connected; call connect() or use `with gripper:`"
+            )
 
     def open(self) -> None:
         self._require()

@@ -1,7 +1,8 @@
 """Inverse kinematics for the UR arms: closed form, mink differential IK, and a Pinocchio CLIK cross-check.
 
 The closed form (`kinematics.ik_branches`) gives every exact solution of the 6-DoF arm (up to 8 branches, each
-valid modulo whole turns). It is the default: the branch nearest the seed that lies within the joint limits and
+valid modulo whole turns). It is the default: the branch nearest the seed that lies within the joint limits
+and
 clears the support plane. The iterative solvers exist for what the closed form cannot express (a support plane
 as a hard constraint while the arm moves, velocity limits along a trajectory) and as independent checks:
 
@@ -10,7 +11,8 @@ as a hard constraint while the arm moves, velocity limits along a trajectory) an
   from the closed-form branches nearest the seed (default) or from the seed plus random restarts.
 - `pinocchio`: damped Gauss-Newton on the SE(3) log error (CLIK) on the Pinocchio model, same seeding.
 
-No posture task is used: it would pull the solution off the target (a 6-DoF arm has no null space to spend it in).
+No posture task is used: it would pull the solution off the target (a 6-DoF arm has no null space to spend it
+in).
 Every result reports errors measured by closed-form forward kinematics, independent of the solver.
 """
 
@@ -52,7 +54,8 @@ class IKConfig:
             the closed form is exact (~1e-12) and only checked against them.
         max_iterations: iterations per seed for the iterative solvers.
         max_seeds: seeds tried by the iterative solvers before giving up.
-        closed_form_seeds: seed the iterative solvers with the closed-form branches nearest the seed (True), or
+        closed_form_seeds: seed the iterative solvers with the closed-form branches nearest the seed (True),
+            or
             with the seed followed by random in-limit configurations (False; this is "the solver on its own").
         random_seed: RNG seed for the random restarts, so a solve is reproducible.
         support_plane_z_m: height of the support plane in the base frame [m], or None for no plane. Arm links
@@ -122,7 +125,9 @@ def pose_errors(T_reached: np.ndarray, T_target: np.ndarray) -> tuple[float, flo
 class _Solve:
     """Bookkeeping shared by the methods: target in flange terms, seed, limits, and the final result."""
 
-    def __init__(self, robot: RobotModel, T_base_flange_target: np.ndarray, q_seed: np.ndarray, config: IKConfig):
+    def __init__(
+        self, robot: RobotModel, T_base_flange_target: np.ndarray, q_seed: np.ndarray, config: IKConfig
+    ):
         self.robot = robot
         self.T_target = T_base_flange_target
         self.q_seed = q_seed
@@ -174,7 +179,8 @@ class _Solve:
             return seeds[: cfg.max_seeds]
         rng = np.random.default_rng(cfg.random_seed)
         extra = rng.uniform(self.lower, self.upper, size=(cfg.max_seeds - 1, 6))
-        # Angles are equivalent modulo a turn; starting each joint in (-pi, pi] keeps the descent away from the
+        # Angles are equivalent modulo a turn; starting each joint in (-pi, pi] keeps the descent away from
+        # the
         # +-2 pi limits it would otherwise run into. `near_seed` moves the answer back next to the seed.
         return wrap_to_pi(np.vstack([self.q_seed, extra]))
 
@@ -188,7 +194,11 @@ def solve_closed_form(solve: _Solve) -> IKResult:
     candidates = solve.closed_form_candidates()
     if len(candidates) == 0:
         branches = ik_branches(solve.robot.spec, solve.T_target)
-        why = "out of reach (no closed-form branch)" if len(branches) == 0 else "every branch is outside the limits"
+        why = (
+            "out of reach (no closed-form branch)"
+            if len(branches) == 0
+            else "every branch is outside the limits"
+        )
         return solve.result(solve.q_seed, 0, "closed_form", why)
     for q in candidates:
         if solve.robot.clears_support(q, solve.config):
@@ -241,7 +251,7 @@ class MinkIK:
         limits = self._limits(cfg)
         best_q, best_err, total_iterations = solve.q_seed, np.inf, 0
         for seed in solve.seeds():
-            q, iterations, err = self._descend(seed, solve, limits)
+            q, iterations, _ = self._descend(seed, solve, limits)
             total_iterations += iterations
             q = solve.near_seed(q)
             success, pos, rot = solve.ok(q)
@@ -258,7 +268,9 @@ class MinkIK:
         history: list[float] = []
         for iteration in range(cfg.max_iterations):
             pos = float(np.linalg.norm(data.site_xpos[self._flange_site] - solve.T_target[:3, 3]))
-            rot = float(rotation_distance(data.site_xmat[self._flange_site].reshape(3, 3), solve.T_target[:3, :3]))
+            rot = float(
+                rotation_distance(data.site_xmat[self._flange_site].reshape(3, 3), solve.T_target[:3, :3])
+            )
             if pos <= cfg.position_tol_m and rot <= cfg.rotation_tol_rad:
                 return conf.q, iteration, pos + rot
             if _stalled(history, pos + rot, cfg.stall_window):
@@ -318,7 +330,8 @@ class PinocchioCLIK:
 
 def _stalled(history: list[float], error: float, window: int) -> bool:
     """Record `error`; True when the best error of the last `window` steps is no better than 0.99x the best
-    before them (a local minimum, or a target blocked by a limit). Gauss-Newton steps far from the solution are
+    before them (a local minimum, or a target blocked by a limit). Gauss-Newton steps far from the solution
+    are
     not monotone, so a single worse step is no reason to stop."""
     history.append(error)
     if len(history) <= window:
@@ -333,7 +346,7 @@ def check_method(method: str) -> str:
 
 
 def batch_fk_errors(robot: RobotModel, Q: np.ndarray, T_targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Position [m] and rotation [rad] errors of N configurations (N, 6) against N flange targets (N, 4, 4)."""
+    """Position [m] and rotation [rad] errors (N,) of configurations Q (N, 6) vs flange targets (N, 4, 4)."""
     T = fk_batch(robot.spec, Q)
     return (
         np.linalg.norm(T[:, :3, 3] - T_targets[:, :3, 3], axis=1),

@@ -1,7 +1,8 @@
 """Hardware-neutral interfaces: `Arm`, `Gripper`, `RGBDCamera`, and the values they exchange.
 
 `SimArm` (sim/), `URRtdeArm` (hardware/) and `FakeArm` (robot/fake.py) implement `Arm`; each runs every motion
-command through the shared `CommandValidator` before acting and returns the command it actually sent. All three
+command through the shared `CommandValidator` before acting and returns the command it actually sent. All
+three
 devices are context managers: ``with arm: ...`` connects and always disconnects.
 """
 
@@ -35,7 +36,9 @@ class JointTrajectory:
         t = np.asarray(self.t_s, dtype=np.float64)
         q = np.asarray(self.q, dtype=np.float64)
         if t.ndim != 1 or q.shape != (t.shape[0], 6) or t.shape[0] < 1:
-            raise InvalidInputError(f"JointTrajectory needs t_s (N,) and q (N, 6), N >= 1; got {t.shape}, {q.shape}")
+            raise InvalidInputError(
+                f"JointTrajectory needs t_s (N,) and q (N, 6), N >= 1; got {t.shape}, {q.shape}"
+            )
         if not np.all(np.isfinite(t)) or t[0] < 0 or np.any(np.diff(t) <= 0):
             raise InvalidInputError("JointTrajectory.t_s must be finite, >= 0 and strictly increasing [s]")
         object.__setattr__(self, "t_s", t)
@@ -91,7 +94,9 @@ class RGBDFrame:
         if rgb.shape != (h, w, 3) or rgb.dtype != np.uint8:
             raise InvalidInputError(f"rgb must be ({h}, {w}, 3) uint8, got {rgb.shape} {rgb.dtype}")
         if depth.shape != (h, w) or depth.dtype != np.float32:
-            raise InvalidInputError(f"depth_m must be ({h}, {w}) float32 metres, got {depth.shape} {depth.dtype}")
+            raise InvalidInputError(
+                f"depth_m must be ({h}, {w}) float32 metres, got {depth.shape} {depth.dtype}"
+            )
         if not np.isfinite(self.timestamp_s):
             raise InvalidInputError("timestamp_s must be finite")
         if self.T_base_cam is not None:
@@ -136,9 +141,11 @@ class Arm(Device):
 
     @abc.abstractmethod
     def move_joints(self, q: ArrayLike, speed: float, accel: float) -> JointCommand:
-        """Move to joint target q (6,) [rad] at joint speed [rad/s] and acceleration [rad/s^2]; blocks until done.
+        """Move to joint target q (6,) [rad] at joint speed [rad/s] and acceleration [rad/s^2]; blocks until
+        done.
 
-        Returns the validated command that was sent; raises `UnsafeCommandError` without moving when refused."""
+        Returns the validated command that was sent; raises `UnsafeCommandError` without moving when
+        refused."""
 
     @abc.abstractmethod
     def move_linear(self, T_base_tcp: ArrayLike, speed: float, accel: float) -> LinearCommand:
@@ -154,7 +161,7 @@ class Arm(Device):
 
 
 class Gripper(Device):
-    """A gripper: parallel jaw, vacuum, ... `width()` is the jaw opening [m] (0 for a closed or suction tool)."""
+    """A gripper (parallel jaw, vacuum, ...); `width()` is the jaw opening [m] (0 when closed or suction)."""
 
     @abc.abstractmethod
     def open(self) -> None:

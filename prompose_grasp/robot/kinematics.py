@@ -1,9 +1,12 @@
 """Closed-form kinematics of the UR arms: DH forward kinematics and the analytic inverse (up to 8 branches).
 
 Everything is numpy on (4, 4) float64 transforms in the DH convention of `ur_models` (frame 0 = `base`,
-frame 6 = `flange`). The inverse is derived from the structure every UR shares: joints 2, 3 and 4 are parallel,
-so the wrist-2 centre lies on a plane at distance d4 from the base axis (gives q1, two branches), the tool z axis
-fixes q5 up to sign (two branches), the tool x/y axes give q6, and a planar 2R problem gives q3 up to sign (two
+frame 6 = `flange`). The inverse is derived from the structure every UR shares: joints 2, 3 and 4 are
+parallel,
+so the wrist-2 centre lies on a plane at distance d4 from the base axis (gives q1, two branches), the tool z
+axis
+fixes q5 up to sign (two branches), the tool x/y axes give q6, and a planar 2R problem gives q3 up to sign
+(two
 branches), then q2 and q4. Each branch is checked by forward kinematics before it is returned.
 """
 
@@ -22,7 +25,8 @@ from prompose_grasp.robot.ur_models import URSpec
 #: edge of the workspace) are clipped; a larger overshoot means the target is out of reach for that branch.
 _ARG_SLACK = 1e-9
 
-#: Below this |sin q5| [-] the wrist is singular (joints 4 and 6 aligned); q6 is then free and taken from the seed.
+#: Below this |sin q5| [-] the wrist is singular (joints 4 and 6 aligned); q6 is then free and taken from the
+# seed.
 _WRIST_SINGULAR_SIN = 1e-10
 
 #: A closed-form branch is kept only when its forward kinematics reproduces the target to this [m] / [rad].
@@ -99,7 +103,8 @@ def fk_batch(spec: URSpec, Q: ArrayLike) -> np.ndarray:
 
 
 def rotation_distance(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
-    """Geodesic angle(s) [rad] between rotations (..., 3, 3), from the chord |R_a - R_b|_F = 2 sqrt(2) sin(theta/2).
+    """Geodesic angle(s) [rad] between rotations (..., 3, 3), from the chord |R_a - R_b|_F = 2 sqrt(2)
+    sin(theta/2).
 
     Unlike arccos of the trace, this stays accurate for tiny angles, and it needs no scipy call (hot path).
     """
@@ -136,7 +141,8 @@ def ik_branches(spec: URSpec, T_base_flange: ArrayLike, q6_if_singular: float = 
     """All closed-form solutions for a flange pose: (K, 6) float64 [rad], K in 0..8, angles in (-pi, pi].
 
     Branch order: shoulder (q1) x wrist (sign of q5) x elbow (sign of q3). Branches whose forward kinematics
-    miss the target by more than `BRANCH_POSITION_TOL_M` / `BRANCH_ROTATION_TOL_RAD` are dropped, so K = 0 means
+    miss the target by more than `BRANCH_POSITION_TOL_M` / `BRANCH_ROTATION_TOL_RAD` are dropped, so K = 0
+    means
     the pose is out of reach. At a wrist singularity (sin q5 = 0) q6 is free and set to `q6_if_singular`.
     Joint limits are not applied here (see `nearest_in_limits`).
     """
@@ -211,7 +217,8 @@ def nearest_in_limits(
     Q = np.asarray(branches, dtype=np.float64).reshape(-1, 6)
     seed = _joint_vector(q_seed, "q_seed")
     lo, hi = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
-    # Shift each angle to the representative nearest the seed, then by one turn back inside the limits if needed.
+    # Shift each angle to the representative nearest the seed, then by one turn back inside the limits if
+    # needed.
     shifted = seed + wrap_to_pi(Q - seed)
     shifted = np.where(shifted > hi, shifted - _TWO_PI, shifted)
     shifted = np.where(shifted < lo, shifted + _TWO_PI, shifted)

@@ -44,7 +44,9 @@ class RobotModel:
     from the same URDF, both created on first use.
     """
 
-    def __init__(self, spec: URSpec, T_flange_tcp: ArrayLike | None = None, ik_config: _ik.IKConfig | None = None):
+    def __init__(
+        self, spec: URSpec, T_flange_tcp: ArrayLike | None = None, ik_config: _ik.IKConfig | None = None
+    ):
         self.spec = spec
         self.name = spec.name
         self.T_flange_tcp = np.eye(4) if T_flange_tcp is None else as_transform(T_flange_tcp, "T_flange_tcp")
@@ -87,8 +89,10 @@ class RobotModel:
         return self.pin_model.createData()
 
     def mjspec(self, actuator_kp: float | None = None, support_plane_z_m: float | None = None):
-        """A fresh `mujoco.MjSpec` of this arm (with `flange` and `tcp` sites); see `mujoco_model.ur_mjspec`."""
-        return ur_mjspec(self.spec, self.T_flange_tcp, actuator_kp=actuator_kp, support_plane_z_m=support_plane_z_m)
+        """A fresh `mujoco.MjSpec` of this arm, `flange` and `tcp` sites included (see `ur_mjspec`)."""
+        return ur_mjspec(
+            self.spec, self.T_flange_tcp, actuator_kp=actuator_kp, support_plane_z_m=support_plane_z_m
+        )
 
     @cached_property
     def mj_model(self):
@@ -114,7 +118,9 @@ class RobotModel:
     def _q(self, q: ArrayLike, name: str = "q") -> np.ndarray:
         q = np.asarray(q, dtype=np.float64)
         if q.shape != (6,) or not np.all(np.isfinite(q)):
-            raise InvalidInputError(f"{name} must be a finite (6,) joint vector [rad], got shape {q.shape}: {q}")
+            raise InvalidInputError(
+                f"{name} must be a finite (6,) joint vector [rad], got shape {q.shape}: {q}"
+            )
         return q
 
     def fk(self, q: ArrayLike) -> np.ndarray:
@@ -172,12 +178,18 @@ class RobotModel:
             T = frames[i]
             for capsule in link.capsules:
                 out.append(
-                    (link.name, T[:3, :3] @ capsule.p0 + T[:3, 3], T[:3, :3] @ capsule.p1 + T[:3, 3], capsule.radius_m)
+                    (
+                        link.name,
+                        T[:3, :3] @ capsule.p0 + T[:3, 3],
+                        T[:3, :3] @ capsule.p1 + T[:3, 3],
+                        capsule.radius_m,
+                    )
                 )
         return out
 
     def support_clearance(self, q: ArrayLike, support_plane_z_m: float = 0.0) -> float:
-        """Smallest distance [m] between the plane z = `support_plane_z_m` and the arm's capsules that must clear
+        """Smallest distance [m] between the plane z = `support_plane_z_m` and the arm's capsules that must
+        clear
         it (all links but `base` and `shoulder_link`); negative when a capsule dips below the plane."""
         return min(
             min(float(p0[2]), float(p1[2])) - r - support_plane_z_m
@@ -222,7 +234,8 @@ class RobotModel:
             config: tolerances, seeding and support plane; the model's `ik_config` if None.
 
         Returns:
-            `IKResult`; `success` is False (with a `message`) for unreachable, out-of-limit or colliding targets,
+            `IKResult`; `success` is False (with a `message`) for unreachable, out-of-limit or colliding
+            targets,
             never a configuration that misses the target.
         """
         t0 = time.perf_counter()
@@ -236,7 +249,8 @@ class RobotModel:
                 self._solvers[method] = _ik.MinkIK(self) if method == "mink" else _ik.PinocchioCLIK(self)
             result = self._solvers[method].solve(solve)  # type: ignore[attr-defined]
         if frame == TCP_NAME:
-            # Errors were measured at the flange; a rigid offset keeps the rotation error, not the position one.
+            # Errors were measured at the flange; a rigid offset keeps the rotation error, not the position
+            # one.
             pos, rot = _ik.pose_errors(self.fk_tcp(result.q), as_transform(T_base_target))
             result = replace(result, position_error_m=pos, rotation_error_rad=rot)
         return replace(result, solve_time_s=time.perf_counter() - t0)
@@ -244,7 +258,8 @@ class RobotModel:
     def ik_all(
         self, T_base_target: ArrayLike, q_seed: ArrayLike | None = None, frame: Frame = "flange"
     ) -> np.ndarray:
-        """(M, 6) every closed-form solution within the joint limits, nearest `q_seed` first (M = 0: unreachable).
+        """(M, 6) every closed-form solution within the joint limits, nearest `q_seed` first (M = 0:
+        unreachable).
 
         Each branch appears once, as its representative nearest the seed."""
         seed = np.zeros(6) if q_seed is None else self._q(q_seed, "q_seed")
@@ -271,9 +286,11 @@ def load_robot(
     """Load a UR arm by name: "ur3e", "ur5e" (default), "ur10e", "ur16e" or "ur5".
 
     Args:
-        name: registry name (case-insensitive); an unknown name raises `UnknownNameError` listing the known ones.
+        name: registry name (case-insensitive); an unknown name raises `UnknownNameError` listing the known
+            ones.
         tcp_offset: the TCP in the flange frame, either (4, 4) T_flange_tcp, (3,) a translation [m], or (6,) a
-            UR pose vector (x, y, z [m], rx, ry, rz [rad]) as in the controller's TCP settings. None: tcp = flange.
+            UR pose vector (x, y, z [m], rx, ry, rz [rad]) as in the controller's TCP settings. None: tcp =
+            flange.
         ik_config: default `IKConfig` of the model's `ik`.
     """
     return RobotModel(get_ur_spec(name), _tcp_transform(tcp_offset), ik_config)
@@ -294,5 +311,6 @@ def _tcp_transform(tcp_offset: ArrayLike | None) -> np.ndarray:
     if arr.shape == (6,):
         return T_from_pose_vector(arr)
     raise InvalidInputError(
-        f"tcp_offset must be (4, 4) T_flange_tcp, (3,) a translation [m] or (6,) a UR pose vector; got {arr.shape}"
+        "tcp_offset must be (4, 4) T_flange_tcp, (3,) a translation [m] or (6,) a UR pose vector; "
+        f"got shape {arr.shape}"
     )

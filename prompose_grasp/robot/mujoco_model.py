@@ -113,12 +113,17 @@ def add_arm_to_spec(
     flange.add_site(name=prefix + FLANGE_NAME, size=[0.005, 0.0, 0.0])
     if T_flange_tcp is not None:
         T_tcp = as_transform(T_flange_tcp, "T_flange_tcp")
-        flange.add_site(name=prefix + TCP_NAME, pos=T_tcp[:3, 3], quat=quat_wxyz_from_R(T_tcp[:3, :3]), size=[0.005, 0.0, 0.0])
+        flange.add_site(
+            name=prefix + TCP_NAME,
+            pos=T_tcp[:3, 3],
+            quat=quat_wxyz_from_R(T_tcp[:3, :3]),
+            size=[0.005, 0.0, 0.0],
+        )
     return root
 
 
 def add_support_plane(spec: mujoco.MjSpec, height_m: float = 0.0, name: str = SUPPORT_PLANE_NAME) -> None:
-    """Add an infinite horizontal plane geom at z = `height_m` in the world frame (the table the arm sits on)."""
+    """Add an infinite horizontal plane geom at z = `height_m` [m] in the world frame (the arm's table)."""
     spec.worldbody.add_geom(
         name=name, type=mujoco.mjtGeom.mjGEOM_PLANE, pos=[0.0, 0.0, float(height_m)], size=[0.0, 0.0, 0.05]
     )

@@ -6,9 +6,11 @@ writes that as URDF; `parse_urdf` reads such a URDF back. Pinocchio is built fro
 from the description parsed out of the same text, so both see the same numbers.
 
 Standard DH puts the joint rotation *before* the fixed part of each link transform
-(frame_i = frame_{i-1} Rz(q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)), while a URDF joint rotates *after* its fixed origin.
+(frame_i = frame_{i-1} Rz(q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)), while a URDF joint rotates *after* its fixed
+origin.
 So URDF link i's frame is DH frame i-1 rotated by q_i, and joint i+1's origin is the fixed part
-Tz(d_i) Tx(a_i) Rx(alpha_i) = (xyz = (a_i, 0, d_i), rpy = (alpha_i, 0, 0)), written exactly. A fixed joint with
+Tz(d_i) Tx(a_i) Rx(alpha_i) = (xyz = (a_i, 0, d_i), rpy = (alpha_i, 0, 0)), written exactly. A fixed joint
+with
 the last fixed part gives `flange` = DH frame 6. Floats are written with `repr`, which round-trips exactly.
 
 Collision capsules are written in standard URDF as a cylinder (the capsule's body) plus a sphere at each end;
@@ -110,7 +112,9 @@ def _dh_point_to_link(spec: URSpec, i: int, p_dh: tuple[float, float, float]) ->
     return (float(p[0]), float(p[1]), float(p[2]))
 
 
-def _capsules_dh(spec: URSpec) -> list[tuple[int, tuple[float, float, float], tuple[float, float, float], float]]:
+def _capsules_dh(
+    spec: URSpec,
+) -> list[tuple[int, tuple[float, float, float], tuple[float, float, float], float]]:
     """(DH frame index, p0, p1, radius) of each link's capsule, written in that link's DH frame.
 
     The capsules follow the DH skeleton: the upper arm and forearm tubes run between the joint centres in the
@@ -141,9 +145,11 @@ def _axis_rotation(direction: np.ndarray) -> np.ndarray:
 
 
 def rpy_from_rotation(R: np.ndarray) -> tuple[float, float, float]:
-    """URDF roll-pitch-yaw [rad] of a rotation, R = Rz(yaw) Ry(pitch) Rx(roll); inverse of `rotation_from_rpy`.
+    """URDF roll-pitch-yaw [rad] of a rotation, R = Rz(yaw) Ry(pitch) Rx(roll); inverse of
+    `rotation_from_rpy`.
 
-    At pitch = +-pi/2 (gimbal lock; common here, capsules often lie along x) roll is set to 0 and yaw absorbs it.
+    At pitch = +-pi/2 (gimbal lock; common here, capsules often lie along x) roll is set to 0 and yaw absorbs
+    it.
     """
     pitch = math.atan2(-R[2, 0], math.hypot(R[0, 0], R[1, 0]))
     if math.hypot(R[0, 0], R[1, 0]) < 1e-12:
@@ -155,7 +161,7 @@ _rpy_of = rpy_from_rotation
 
 
 def _cylinder_inertial(mass_kg: float, capsule: Capsule) -> Inertial:
-    """A solid cylinder the size of the capsule, centred on it: a realistic spread for a hollow tube + motors."""
+    """A solid cylinder the size of the capsule, centred on it: a fair spread for a hollow tube + motors."""
     p0, p1 = np.asarray(capsule.p0), np.asarray(capsule.p1)
     r, length = capsule.radius_m, capsule.length_m + capsule.radius_m
     i_axial = 0.5 * mass_kg * r**2
@@ -220,20 +226,32 @@ def urdf_from_description(desc: ArmDescription) -> str:
             ET.SubElement(inertial, "mass", value=repr(link.inertial.mass_kg))
             ixx, iyy, izz = link.inertial.inertia_diag
             ET.SubElement(
-                inertial, "inertia", ixx=repr(ixx), ixy="0.0", ixz="0.0", iyy=repr(iyy), iyz="0.0", izz=repr(izz)
+                inertial,
+                "inertia",
+                ixx=repr(ixx),
+                ixy="0.0",
+                ixz="0.0",
+                iyy=repr(iyy),
+                iyz="0.0",
+                izz=repr(izz),
             )
         for k, capsule in enumerate(link.capsules):
             p0, p1 = np.asarray(capsule.p0), np.asarray(capsule.p1)
             rpy = _rpy_of(_axis_rotation(p1 - p0))
             base = f"{link.name}_capsule{k}"
             for name, xyz, geom, attrs in (
-                (base, 0.5 * (p0 + p1), "cylinder", {"radius": repr(capsule.radius_m), "length": repr(capsule.length_m)}),
+                (
+                    base,
+                    0.5 * (p0 + p1),
+                    "cylinder",
+                    {"radius": repr(capsule.radius_m), "length": repr(capsule.length_m)},
+                ),
                 (f"{base}_cap_a", p0, "sphere", {"radius": repr(capsule.radius_m)}),
                 (f"{base}_cap_b", p1, "sphere", {"radius": repr(capsule.radius_m)}),
             ):
                 col = ET.SubElement(el, "collision", name=name)
                 ET.SubElement(col, "origin", xyz=_fmt(list(xyz)), rpy=_fmt(rpy))
-                ET.SubElement(ET.SubElement(col, "geometry"), geom, **attrs)
+                ET.SubElement(ET.SubElement(col, "geometry"), geom, attrib=attrs)
     for joint in desc.joints:
         el = ET.SubElement(robot, "joint", name=joint.name, type=joint.type)
         ET.SubElement(el, "parent", link=joint.parent)
@@ -284,7 +302,9 @@ def _parse_link(el: ET.Element) -> LinkDescription:
             raise InvalidInputError(f"URDF link {name!r}: <inertial> needs <mass> and <inertia>")
         off_diagonal = [float(inertia_el.get(k, "0")) for k in ("ixy", "ixz", "iyz")]
         if any(abs(v) > 0.0 for v in off_diagonal):
-            raise InvalidInputError(f"URDF link {name!r}: only principal-axis inertias (ixy = ixz = iyz = 0) are read")
+            raise InvalidInputError(
+                f"URDF link {name!r}: only principal-axis inertias (ixy = ixz = iyz = 0) are read"
+            )
         inertial = Inertial(
             mass_kg=float(mass_el.get("value", "nan")),
             com_xyz=com,
@@ -298,7 +318,9 @@ def _parse_link(el: ET.Element) -> LinkDescription:
             continue  # the end spheres are implied by the capsule body
         cyl = col.find("geometry/cylinder")
         if cyl is None:
-            raise InvalidInputError(f"URDF link {name!r}: collision {col_name!r} is not a capsule body cylinder")
+            raise InvalidInputError(
+                f"URDF link {name!r}: collision {col_name!r} is not a capsule body cylinder"
+            )
         xyz, rpy = _origin(col.find("origin"))
         half = 0.5 * float(cyl.get("length", "nan"))
         axis = Rotation.from_euler("xyz", rpy).apply([0.0, 0.0, half])
@@ -324,7 +346,9 @@ def parse_urdf(text: str) -> ArmDescription:
     for el in robot.findall("joint"):
         jtype = el.get("type", "")
         if jtype not in ("revolute", "fixed"):
-            raise InvalidInputError(f"URDF joint {el.get('name')!r}: type {jtype!r}; accepted: revolute, fixed")
+            raise InvalidInputError(
+                f"URDF joint {el.get('name')!r}: type {jtype!r}; accepted: revolute, fixed"
+            )
         parent, child = el.find("parent"), el.find("child")
         if parent is None or child is None:
             raise InvalidInputError(f"URDF joint {el.get('name')!r} needs <parent> and <child>")
@@ -359,7 +383,9 @@ def parse_urdf(text: str) -> ArmDescription:
         ordered_links.append(links[current])
     if len(ordered_links) != len(links):
         raise InvalidInputError("URDF is not a serial chain (branches or disconnected links)")
-    return ArmDescription(name=robot.get("name", ""), links=tuple(ordered_links), joints=tuple(ordered_joints))
+    return ArmDescription(
+        name=robot.get("name", ""), links=tuple(ordered_links), joints=tuple(ordered_joints)
+    )
 
 
 def rotation_from_rpy(rpy: tuple[float, float, float]) -> np.ndarray:

@@ -1,7 +1,8 @@
 """The one command validator every arm backend runs before acting.
 
 `CommandValidator` checks a joint move, a linear TCP move or a timed trajectory against a frozen
-`ValidatorConfig` (joint limits, joint step, speed and acceleration caps, a TCP workspace box, NaN) and returns
+`ValidatorConfig` (joint limits, joint step, speed and acceleration caps, a TCP workspace box, NaN) and
+returns
 the command it will actually send, or raises `UnsafeCommandError` naming the joint, the limit and the value.
 Nothing is silently changed unless the config asks for it (`clip_speed=True` lowers a too-high speed or
 acceleration argument to the cap and logs it; trajectories are never re-timed).
@@ -46,7 +47,8 @@ class ValidatorConfig:
         max_joint_speed_rad_s: (6,) joint speed caps [rad/s]; a `move_joints` speed must not exceed the
             smallest of them (the speed argument applies to the leading joint, whichever that is).
         max_joint_accel_rad_s2: joint acceleration cap [rad/s^2].
-        max_move_step_rad: largest change of any joint in one `move_joints` [rad]. pi by default: a bigger jump
+        max_move_step_rad: largest change of any joint in one `move_joints` [rad]. pi by default: a bigger
+            jump
             is almost always a wrong IK representative (a wrist spun by a full turn).
         max_waypoint_step_rad: largest change of any joint between consecutive trajectory waypoints (and from
             the current position to the first one) [rad].
@@ -75,7 +77,9 @@ class ValidatorConfig:
         if any(lo >= hi for lo, hi in zip(self.joint_lower_rad, self.joint_upper_rad)):
             raise InvalidInputError("ValidatorConfig: every joint needs joint_lower_rad < joint_upper_rad")
         if any(lo >= hi for lo, hi in zip(self.workspace_min_m, self.workspace_max_m)):
-            raise InvalidInputError("ValidatorConfig: workspace_min_m must be below workspace_max_m on every axis")
+            raise InvalidInputError(
+                "ValidatorConfig: workspace_min_m must be below workspace_max_m on every axis"
+            )
         positive = (
             "max_joint_accel_rad_s2",
             "max_move_step_rad",
@@ -158,7 +162,9 @@ class CommandValidator:
             raise UnsafeCommandError(f"{what}: {name} must be finite and > 0 {unit}, got {value!r}")
         if value > cap:
             if self.config.clip_speed:
-                logger.warning("%s: %s %.4g %s clipped to the cap %.4g %s", what, name, value, unit, cap, unit)
+                logger.warning(
+                    "%s: %s %.4g %s clipped to the cap %.4g %s", what, name, value, unit, cap, unit
+                )
                 return cap
             raise UnsafeCommandError(f"{what}: {name} {value:.6g} {unit} exceeds the cap {cap:.6g} {unit}")
         return value
@@ -177,12 +183,15 @@ class CommandValidator:
     def validate_configuration(
         self, q_target: ArrayLike, q_current: ArrayLike | None = None, what: str = "joint target"
     ) -> np.ndarray:
-        """Check a joint configuration the arm will move to: finite, within limits, at most `max_move_step_rad`
+        """Check a joint configuration the arm will move to: finite, within limits, at most
+        `max_move_step_rad`
         from `q_current` on every joint (when given), TCP inside the workspace. Returns a float64 copy."""
         q = self._finite_q(q_target, what)
         self._check_limits(q, what)
         if q_current is not None:
-            self._check_step(self._finite_q(q_current, "current position"), q, self.config.max_move_step_rad, what)
+            self._check_step(
+                self._finite_q(q_current, "current position"), q, self.config.max_move_step_rad, what
+            )
         self._check_workspace_q(q, what)
         return q
 
@@ -191,9 +200,15 @@ class CommandValidator:
         what = "move_linear"
         T = np.asarray(T_base_tcp, dtype=np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise UnsafeCommandError(f"{what}: T_base_tcp must be a finite (4, 4) transform, got shape {T.shape}")
+            raise UnsafeCommandError(
+                f"{what}: T_base_tcp must be a finite (4, 4) transform, got shape {T.shape}"
+            )
         R = T[:3, :3]
-        if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0 or not np.allclose(T[3], [0, 0, 0, 1]):
+        if (
+            not np.allclose(R.T @ R, np.eye(3), atol=1e-6)
+            or np.linalg.det(R) < 0
+            or not np.allclose(T[3], [0, 0, 0, 1])
+        ):
             raise UnsafeCommandError(f"{what}: T_base_tcp is not a rigid transform")
         self._check_workspace_point(T[:3, 3], what)
         speed = self._cap(speed, self.config.max_tcp_speed_m_s, "TCP speed", "m/s", what)
@@ -201,7 +216,8 @@ class CommandValidator:
         return LinearCommand(T_base_tcp=T.copy(), speed_m_s=speed, accel_m_s2=accel)
 
     def validate_trajectory(self, trajectory: JointTrajectory, q_current: ArrayLike) -> JointTrajectory:
-        """Check a timed trajectory from `q_current`: every waypoint finite and in limits and in the workspace,
+        """Check a timed trajectory from `q_current`: every waypoint finite and in limits and in the
+        workspace,
         consecutive steps below `max_waypoint_step_rad`, joint speeds (finite differences) below the caps and
         accelerations below `max_joint_accel_rad_s2`. Returns a copy of the trajectory that will be sent."""
         what = "follow"
@@ -222,20 +238,20 @@ class CommandValidator:
         v = np.zeros((len(dt), 6))
         v[moving] = np.diff(Q, axis=0)[moving] / dt[moving, None]
         ratio = np.abs(v) / self._vmax
-        k, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+        k, j = (int(i) for i in np.unravel_index(int(np.argmax(ratio)), ratio.shape))
         if ratio[k, j] > 1.0:
             raise UnsafeCommandError(
-                f"{what}: joint {j} ({JOINT_NAMES[j]}) would move at {abs(v[k, j]):.6g} rad/s before waypoint "
-                f"{k}; its speed limit is {self._vmax[j]:.6g} rad/s"
+                f"{what}: joint {j} ({JOINT_NAMES[j]}) would move at {abs(v[k, j]):.6g} rad/s "
+                f"before waypoint {k}; its speed limit is {self._vmax[j]:.6g} rad/s"
             )
         if len(dt) >= 2:
             t_mid = 0.5 * (t[1:] + t[:-1])
             dt_mid = np.diff(t_mid)
             a = np.diff(v, axis=0) / np.where(dt_mid > 0, dt_mid, np.inf)[:, None]
-            k, j = np.unravel_index(int(np.argmax(np.abs(a))), a.shape)
+            k, j = (int(i) for i in np.unravel_index(int(np.argmax(np.abs(a))), a.shape))
             if abs(a[k, j]) > self.config.max_joint_accel_rad_s2:
                 raise UnsafeCommandError(
-                    f"{what}: joint {j} ({JOINT_NAMES[j]}) would accelerate at {abs(a[k, j]):.6g} rad/s^2 around "
-                    f"waypoint {k}; the cap is {self.config.max_joint_accel_rad_s2:.6g} rad/s^2"
+                    f"{what}: joint {j} ({JOINT_NAMES[j]}) would accelerate at {abs(a[k, j]):.6g} rad/s^2 "
+                    f"around waypoint {k}; the cap is {self.config.max_joint_accel_rad_s2:.6g} rad/s^2"
                 )
         return JointTrajectory(t_s=trajectory.t_s.copy(), q=trajectory.q.copy())

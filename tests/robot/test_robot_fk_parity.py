@@ -35,7 +35,9 @@ def test_tcp_is_flange_times_offset():
     robot = load_robot("ur5e", tcp_offset=TCP_OFFSET)
     q = np.array([0.3, -1.2, 1.1, -0.4, 1.3, 0.2])
     T_flange = robot.fk(q)
-    np.testing.assert_allclose(robot.fk_tcp(q)[:3, 3], T_flange[:3, :3] @ TCP_OFFSET + T_flange[:3, 3], atol=1e-15)
+    np.testing.assert_allclose(
+        robot.fk_tcp(q)[:3, 3], T_flange[:3, :3] @ TCP_OFFSET + T_flange[:3, 3], atol=1e-15
+    )
     # A UR pose vector (x, y, z, rx, ry, rz) works as the offset too; rotation about z by pi/2 here.
     robot6 = load_robot("ur5e", tcp_offset=[0, 0, 0.1, 0, 0, np.pi / 2])
     np.testing.assert_allclose(robot6.fk_tcp(q)[:3, 0], T_flange[:3, 1], atol=1e-12)  # float64 rounding
@@ -105,5 +107,6 @@ def test_jacobian_matches_finite_differences(name):
                 Tp, Tm = robot.fk_frame(q + dq, frame), robot.fk_frame(q - dq, frame)
                 J_fd[:3, j] = (Tp[:3, 3] - Tm[:3, 3]) / (2 * h)
                 J_fd[3:, j] = so3_log(Tp[:3, :3] @ Tm[:3, :3].T) / (2 * h)
-            # Central differences with h = 1e-6 on ~1 m lever arms: truncation ~h^2, rounding ~1e-16/h = 1e-10.
+            # Central differences with h = 1e-6 on ~1 m lever arms: truncation ~h^2, rounding ~1e-16/h =
+            # 1e-10.
             np.testing.assert_allclose(J, J_fd, atol=1e-8)
