@@ -1,4 +1,51 @@
 """The MuJoCo stand-in: scenes, RGB-D cameras with sensor noise, the simulated arm and grippers.
 
 `sim` uses `prompose_grasp`; the library never imports `sim`. It arrives with issue 4.
+
+What is here (docs/sim.md has the details):
+
+- `sim.objects`: a procedural object library (box, carton, can, bottle, bowl, mug, cup, laptop, camera, ball,
+  tube, sack, parcel) in canonical frames with exact 9-DoF sizes, and meshes from OBJ/STL files.
+- `sim.world`: `SceneBuilder` (one `mujoco.MjSpec`: floor, table, bin, conveyor, EUR pallet, objects, cameras,
+  lights, mount bodies) and the compiled `SimWorld` (step, reset, settle, render, ground truth).
+- `sim.camera`, `sim.noise`: MuJoCo's exact pinhole intrinsics, OpenCV camera frames, depth-sensor noise
+  presets ("clean", "realsense", "kinect").
+- `sim.scene_file`: YAML/JSON scenario files; `sim/scenes/` holds the tabletop, bin and logistics scenes.
+- `python -m sim view --scene FILE --out img.png`; `python -m sim.dataset --out DIR ...` (synthetic data).
+
+Rendering is headless: MUJOCO_GL defaults to "egl" (set before MuJoCo loads; EGL through Mesa works on a
+CPU-only machine). Set MUJOCO_GL=osmesa where EGL is missing.
 """
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from sim.camera import CameraSpec, RGBDFrame, look_at, mujoco_intrinsics
+from sim.noise import NOISE_PRESETS, DepthNoiseConfig, apply_depth_noise, noise_preset
+from sim.objects import FAMILIES, ObjectAsset, load_mesh_object, make_object
+from sim.scene_file import build_scene, load_scene, load_world
+from sim.world import Appearance, SceneBuilder, SimWorld, Support, upright_pose
+
+__all__ = [
+    "FAMILIES",
+    "NOISE_PRESETS",
+    "Appearance",
+    "CameraSpec",
+    "DepthNoiseConfig",
+    "ObjectAsset",
+    "RGBDFrame",
+    "SceneBuilder",
+    "SimWorld",
+    "Support",
+    "apply_depth_noise",
+    "build_scene",
+    "load_mesh_object",
+    "load_scene",
+    "load_world",
+    "look_at",
+    "make_object",
+    "mujoco_intrinsics",
+    "noise_preset",
+    "upright_pose",
+]

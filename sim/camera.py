@@ -48,15 +48,8 @@ def mujoco_intrinsics(width: int, height: int, fovy_deg: float) -> CameraIntrins
         raise InvalidInputError(f"width and height must be positive integers, got {width} x {height}")
     if not (math.isfinite(fovy_deg) and 0.0 < fovy_deg < 180.0):
         raise InvalidInputError(f"fovy_deg must lie in (0, 180) degrees, got {fovy_deg}")
-    f = (height / 2.0) / math.tan(math.radians(fovy_deg) / 2.0)
-    return CameraIntrinsics(
-        fx=f, fy=f, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, width=int(width), height=int(height)
-    )
-
-
-def K_matrix(K: CameraIntrinsics) -> np.ndarray:
-    """(3, 3) float64 camera matrix of intrinsics."""
-    return np.array([[K.fx, 0.0, K.cx], [0.0, K.fy, K.cy], [0.0, 0.0, 1.0]])
+    # The library's from_fovy implements exactly MuJoCo's projection; tests/sim checks it against renders.
+    return CameraIntrinsics.from_fovy(int(width), int(height), float(fovy_deg))
 
 
 def look_at(eye_m: ArrayLike, target_m: ArrayLike, up: ArrayLike = (0.0, 0.0, 1.0)) -> np.ndarray:

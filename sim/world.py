@@ -233,7 +233,12 @@ class SceneBuilder:
     """
 
     def __init__(
-        self, name: str = "scene", timestep_s: float = 0.002, max_image_size: tuple[int, int] = (1280, 960)
+        self,
+        name: str = "scene",
+        timestep_s: float = 0.002,
+        max_image_size: tuple[int, int] = (1280, 960),
+        msaa_samples: int = 4,
+        shadow_size: int = 2048,
     ):
         if not (math.isfinite(timestep_s) and 0.0 < timestep_s <= 0.05):
             raise InvalidInputError(f"timestep_s must lie in (0, 0.05] s, got {timestep_s}")
@@ -249,7 +254,10 @@ class SceneBuilder:
         # Near plane relative to the model extent: a wrist camera sees objects from a few centimetres.
         self.spec.visual.map.znear = 0.002
         self.spec.visual.map.zfar = 20.0
-        self.spec.visual.quality.shadowsize = 2048
+        # Multisampling and shadow-map size dominate software (llvmpipe) rendering time; data generation
+        # lowers them (msaa_samples=0, shadow_size=1024 renders about twice as fast on 2 CPU cores).
+        self.spec.visual.quality.offsamples = int(msaa_samples)
+        self.spec.visual.quality.shadowsize = int(shadow_size)
         self.spec.visual.headlight.ambient = [0.25, 0.25, 0.25]
         self.spec.visual.headlight.diffuse = [0.35, 0.35, 0.35]
         self.spec.visual.headlight.specular = [0.1, 0.1, 0.1]
