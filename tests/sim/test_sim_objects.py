@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -107,3 +110,19 @@ def test_mesh_file_with_scale_and_up_axis(tmp_path):
         load_mesh_object(tmp_path / "missing.obj")
     with pytest.raises(UnknownNameError):
         load_mesh_object(path, up_axis="w")
+
+
+SHARED_OBJECTS = Path(__file__).resolve().parents[3] / "shared" / "data" / "objects"
+
+
+@pytest.mark.shared_data
+@pytest.mark.skipif(
+    not (SHARED_OBJECTS / "objects.json").is_file(), reason="../shared/data/objects is absent"
+)
+def test_real_meshes_load_with_their_listed_extents():
+    entries = json.loads((SHARED_OBJECTS / "objects.json").read_text())[:5]
+    for e in entries:
+        asset = load_mesh_object(SHARED_OBJECTS / e["dir"] / "model.obj", up_axis="y")
+        # objects.json rounds extents to 0.1 mm
+        np.testing.assert_allclose(asset.size, e["extents_m"], atol=1.5e-4)
+        assert asset.category == e["dir"]
