@@ -1,0 +1,46 @@
+"""Canonical shape priors: text -> a mesh in the unit box with 5000 surface points (paper sections 3.3, 4.1).
+
+The paper generates the prior with Hunyuan3D once per sequence. The embedded default here is a library of
+parametric shape families retrieved by sentence similarity (`PriorLibrary`), with a superquadric fitted to
+the first observation for words the library does not know (`fit_superquadric`), or a user CAD mesh
+(`from_mesh`). docs/priors.md describes the choice, the families and their canonical frames.
+"""
+
+from prompose_grasp.perception.priors.families import FAMILIES, ShapeFamily
+from prompose_grasp.perception.priors.library import (
+    DEFAULT_MATCH_THRESHOLD,
+    PriorLibrary,
+    core_phrase,
+    superquadric_prior,
+)
+from prompose_grasp.perception.priors.prior import (
+    DEFAULT_N_POINTS,
+    SYMMETRIES,
+    ShapePrior,
+    from_mesh,
+    normalize_to_unit_box,
+)
+from prompose_grasp.perception.priors.superquadric import (
+    SuperquadricFit,
+    fit_superquadric,
+    superquadric_inside_outside,
+    superquadric_mesh,
+)
+
+__all__ = [
+    "DEFAULT_MATCH_THRESHOLD",
+    "DEFAULT_N_POINTS",
+    "FAMILIES",
+    "SYMMETRIES",
+    "PriorLibrary",
+    "ShapeFamily",
+    "ShapePrior",
+    "SuperquadricFit",
+    "core_phrase",
+    "fit_superquadric",
+    "from_mesh",
+    "normalize_to_unit_box",
+    "superquadric_inside_outside",
+    "superquadric_mesh",
+    "superquadric_prior",
+]
