@@ -4,13 +4,11 @@
 
 Protocol: targets are the flange poses of configurations drawn uniformly within the joint limits (so every
 target is reachable); each solve gets an independent random in-limit seed (the "current configuration"). A
-solve
-counts as a success only when the solver says so *and* closed-form forward kinematics of its answer is within
-1 mm and 0.1 deg of the target; a claimed success outside that is counted separately as `wrong` (it must be
-0).
-Unreachable targets (poses beyond the arm's reach) check that the solver fails cleanly. Times are per solve,
-single thread, seeding included: CPU time of the solving thread (`time.thread_time`, immune to other processes
-on a shared machine) and wall-clock time (what a caller waits, including preemption).
+solve counts as a success only when the solver says so *and* closed-form forward kinematics of its answer is
+within 1 mm and 0.1 deg of the target; a claimed success outside that is counted separately as `wrong` (it
+must be 0). Unreachable targets (poses beyond the arm's reach) check that the solver fails cleanly. Times are
+per solve, single thread, seeding included: CPU time of the solving thread (`time.thread_time`, immune to
+other processes on a shared machine) and wall-clock time (what a caller waits, including preemption).
 """
 
 from __future__ import annotations

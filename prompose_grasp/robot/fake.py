@@ -2,8 +2,7 @@
 
 They behave like a real backend at the interface: every command goes through the `CommandValidator`, a refused
 command leaves the state untouched, and what was sent is both returned and recorded in `sent`. Motions
-complete
-instantly (no dynamics); `move_linear` uses the closed-form IK nearest the current configuration.
+complete instantly (no dynamics); `move_linear` uses the closed-form IK nearest the current configuration.
 """
 
 from __future__ import annotations
@@ -100,8 +99,7 @@ class FakeArm(Arm):
 
 
 class FakeGripper(Gripper):
-    """A parallel-jaw gripper. Closing stops on an object of `object_width_m` (None: nothing between the
-    jaws).
+    """A parallel-jaw gripper; closing stops on an object of `object_width_m` (None: no object).
 
     Attributes:
         max_width_m: full opening [m].

@@ -2,9 +2,8 @@
 
 The closed form (`kinematics.ik_branches`) gives every exact solution of the 6-DoF arm (up to 8 branches, each
 valid modulo whole turns). It is the default: the branch nearest the seed that lies within the joint limits
-and
-clears the support plane. The iterative solvers exist for what the closed form cannot express (a support plane
-as a hard constraint while the arm moves, velocity limits along a trajectory) and as independent checks:
+and clears the support plane. The iterative solvers exist for what the closed form cannot express (the support
+plane as a hard constraint of a descent, velocity limits) and as independent checks:
 
 - `mink`: differential IK on the MuJoCo model (QP solved by daqp, `ConfigurationLimit`, and
   `CollisionAvoidanceLimit` between the arm's capsules and the support plane when one is configured), started
@@ -12,8 +11,7 @@ as a hard constraint while the arm moves, velocity limits along a trajectory) an
 - `pinocchio`: damped Gauss-Newton on the SE(3) log error (CLIK) on the Pinocchio model, same seeding.
 
 No posture task is used: it would pull the solution off the target (a 6-DoF arm has no null space to spend it
-in).
-Every result reports errors measured by closed-form forward kinematics, independent of the solver.
+in). Every result reports errors measured by closed-form forward kinematics, independent of the solver.
 """
 
 from __future__ import annotations
@@ -55,8 +53,7 @@ class IKConfig:
         max_iterations: iterations per seed for the iterative solvers.
         max_seeds: seeds tried by the iterative solvers before giving up.
         closed_form_seeds: seed the iterative solvers with the closed-form branches nearest the seed (True),
-            or
-            with the seed followed by random in-limit configurations (False; this is "the solver on its own").
+            or with the seed followed by random in-limit configurations (False: "the solver on its own").
         random_seed: RNG seed for the random restarts, so a solve is reproducible.
         support_plane_z_m: height of the support plane in the base frame [m], or None for no plane. Arm links
             (all but `base` and `shoulder_link`, which sit on it) must stay above it.
@@ -180,8 +177,7 @@ class _Solve:
         rng = np.random.default_rng(cfg.random_seed)
         extra = rng.uniform(self.lower, self.upper, size=(cfg.max_seeds - 1, 6))
         # Angles are equivalent modulo a turn; starting each joint in (-pi, pi] keeps the descent away from
-        # the
-        # +-2 pi limits it would otherwise run into. `near_seed` moves the answer back next to the seed.
+        # the +-2 pi limits it would otherwise run into. `near_seed` moves the answer back next to the seed.
         return wrap_to_pi(np.vstack([self.q_seed, extra]))
 
     def near_seed(self, q: np.ndarray) -> np.ndarray:
@@ -238,11 +234,6 @@ class MinkIK:
             self.collision_limit.minimum_distance_from_collisions = config.support_clearance_m
             limits.append(self.collision_limit)
         return limits
-
-    def velocity_limit(self):
-        """mink `VelocityLimit` with the arm's joint speed limits (for trajectories in real time)."""
-        names = self.robot.joint_names
-        return self._mink.VelocityLimit(self.model, dict(zip(names, self.robot.max_joint_speed)))
 
     def solve(self, solve: _Solve) -> IKResult:
         cfg = solve.config
@@ -330,9 +321,8 @@ class PinocchioCLIK:
 
 def _stalled(history: list[float], error: float, window: int) -> bool:
     """Record `error`; True when the best error of the last `window` steps is no better than 0.99x the best
-    before them (a local minimum, or a target blocked by a limit). Gauss-Newton steps far from the solution
-    are
-    not monotone, so a single worse step is no reason to stop."""
+    before them (a local minimum, or a target blocked by a limit). Gauss-Newton steps far from the
+    solution are not monotone, so a single worse step is no reason to stop."""
     history.append(error)
     if len(history) <= window:
         return False

@@ -2,8 +2,7 @@
 
 `SimArm` (sim/), `URRtdeArm` (hardware/) and `FakeArm` (robot/fake.py) implement `Arm`; each runs every motion
 command through the shared `CommandValidator` before acting and returns the command it actually sent. All
-three
-devices are context managers: ``with arm: ...`` connects and always disconnects.
+three devices are context managers: ``with arm: ...`` connects and always disconnects.
 """
 
 from __future__ import annotations
@@ -141,11 +140,9 @@ class Arm(Device):
 
     @abc.abstractmethod
     def move_joints(self, q: ArrayLike, speed: float, accel: float) -> JointCommand:
-        """Move to joint target q (6,) [rad] at joint speed [rad/s] and acceleration [rad/s^2]; blocks until
-        done.
+        """Move to joint target q (6,) [rad] at speed [rad/s] and acceleration [rad/s^2]; blocks until done.
 
-        Returns the validated command that was sent; raises `UnsafeCommandError` without moving when
-        refused."""
+        Returns the validated command that was sent; raises `UnsafeCommandError` (not moving) if refused."""
 
     @abc.abstractmethod
     def move_linear(self, T_base_tcp: ArrayLike, speed: float, accel: float) -> LinearCommand:

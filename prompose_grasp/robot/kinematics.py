@@ -2,12 +2,10 @@
 
 Everything is numpy on (4, 4) float64 transforms in the DH convention of `ur_models` (frame 0 = `base`,
 frame 6 = `flange`). The inverse is derived from the structure every UR shares: joints 2, 3 and 4 are
-parallel,
-so the wrist-2 centre lies on a plane at distance d4 from the base axis (gives q1, two branches), the tool z
-axis
-fixes q5 up to sign (two branches), the tool x/y axes give q6, and a planar 2R problem gives q3 up to sign
-(two
-branches), then q2 and q4. Each branch is checked by forward kinematics before it is returned.
+parallel, so the wrist-2 centre lies on a plane at distance d4 from the base axis (gives q1, two branches),
+the tool z axis fixes q5 up to sign (two branches), the tool x/y axes give q6, and a planar 2R problem gives
+q3 up to sign (two branches), then q2 and q4. Each branch is checked by forward kinematics before it is
+returned.
 """
 
 from __future__ import annotations
@@ -25,8 +23,7 @@ from prompose_grasp.robot.ur_models import URSpec
 #: edge of the workspace) are clipped; a larger overshoot means the target is out of reach for that branch.
 _ARG_SLACK = 1e-9
 
-#: Below this |sin q5| [-] the wrist is singular (joints 4 and 6 aligned); q6 is then free and taken from the
-# seed.
+#: Below this |sin q5| [-] the wrist is singular (joints 4 and 6 aligned); q6 is free and taken from the seed.
 _WRIST_SINGULAR_SIN = 1e-10
 
 #: A closed-form branch is kept only when its forward kinematics reproduces the target to this [m] / [rad].
@@ -103,8 +100,9 @@ def fk_batch(spec: URSpec, Q: ArrayLike) -> np.ndarray:
 
 
 def rotation_distance(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
-    """Geodesic angle(s) [rad] between rotations (..., 3, 3), from the chord |R_a - R_b|_F = 2 sqrt(2)
-    sin(theta/2).
+    """Geodesic angle(s) [rad] between rotations (..., 3, 3), from the chord |R_a - R_b|_F.
+
+    The chord is 2 sqrt(2) sin(theta / 2).
 
     Unlike arccos of the trace, this stays accurate for tiny angles, and it needs no scipy call (hot path).
     """
@@ -142,9 +140,8 @@ def ik_branches(spec: URSpec, T_base_flange: ArrayLike, q6_if_singular: float = 
 
     Branch order: shoulder (q1) x wrist (sign of q5) x elbow (sign of q3). Branches whose forward kinematics
     miss the target by more than `BRANCH_POSITION_TOL_M` / `BRANCH_ROTATION_TOL_RAD` are dropped, so K = 0
-    means
-    the pose is out of reach. At a wrist singularity (sin q5 = 0) q6 is free and set to `q6_if_singular`.
-    Joint limits are not applied here (see `nearest_in_limits`).
+    means the pose is out of reach. At a wrist singularity (sin q5 = 0) q6 is free and set to
+    `q6_if_singular`. Joint limits are not applied here (see `nearest_in_limits`).
     """
     T = as_transform(T_base_flange, "T_base_flange")
     d1, a2, a3, d4, d5, d6 = spec.d1, spec.a2, spec.a3, spec.d4, spec.d5, spec.d6
@@ -217,8 +214,7 @@ def nearest_in_limits(
     Q = np.asarray(branches, dtype=np.float64).reshape(-1, 6)
     seed = _joint_vector(q_seed, "q_seed")
     lo, hi = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
-    # Shift each angle to the representative nearest the seed, then by one turn back inside the limits if
-    # needed.
+    # Shift each angle to the representative nearest the seed, then by one turn back inside the limits.
     shifted = seed + wrap_to_pi(Q - seed)
     shifted = np.where(shifted > hi, shifted - _TWO_PI, shifted)
     shifted = np.where(shifted < lo, shifted + _TWO_PI, shifted)

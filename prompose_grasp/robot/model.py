@@ -189,8 +189,7 @@ class RobotModel:
 
     def support_clearance(self, q: ArrayLike, support_plane_z_m: float = 0.0) -> float:
         """Smallest distance [m] between the plane z = `support_plane_z_m` and the arm's capsules that must
-        clear
-        it (all links but `base` and `shoulder_link`); negative when a capsule dips below the plane."""
+        clear it (all links but `base` and `shoulder_link`); negative when a capsule dips below the plane."""
         return min(
             min(float(p0[2]), float(p1[2])) - r - support_plane_z_m
             for name, p0, p1, r in self.capsules_in_base(q)
@@ -235,8 +234,7 @@ class RobotModel:
 
         Returns:
             `IKResult`; `success` is False (with a `message`) for unreachable, out-of-limit or colliding
-            targets,
-            never a configuration that misses the target.
+            targets, never a configuration that misses the target.
         """
         t0 = time.perf_counter()
         _ik.check_method(method)
@@ -249,8 +247,7 @@ class RobotModel:
                 self._solvers[method] = _ik.MinkIK(self) if method == "mink" else _ik.PinocchioCLIK(self)
             result = self._solvers[method].solve(solve)  # type: ignore[attr-defined]
         if frame == TCP_NAME:
-            # Errors were measured at the flange; a rigid offset keeps the rotation error, not the position
-            # one.
+            # Errors were measured at the flange; the offset keeps the rotation error, not the position one.
             pos, rot = _ik.pose_errors(self.fk_tcp(result.q), as_transform(T_base_target))
             result = replace(result, position_error_m=pos, rotation_error_rad=rot)
         return replace(result, solve_time_s=time.perf_counter() - t0)
@@ -258,8 +255,7 @@ class RobotModel:
     def ik_all(
         self, T_base_target: ArrayLike, q_seed: ArrayLike | None = None, frame: Frame = "flange"
     ) -> np.ndarray:
-        """(M, 6) every closed-form solution within the joint limits, nearest `q_seed` first (M = 0:
-        unreachable).
+        """(M, 6) every closed-form solution within the joint limits, nearest `q_seed` first (M = 0: none).
 
         Each branch appears once, as its representative nearest the seed."""
         seed = np.zeros(6) if q_seed is None else self._q(q_seed, "q_seed")
@@ -286,11 +282,10 @@ def load_robot(
     """Load a UR arm by name: "ur3e", "ur5e" (default), "ur10e", "ur16e" or "ur5".
 
     Args:
-        name: registry name (case-insensitive); an unknown name raises `UnknownNameError` listing the known
-            ones.
+        name: registry name (case-insensitive); unknown names raise `UnknownNameError` listing the known.
         tcp_offset: the TCP in the flange frame, either (4, 4) T_flange_tcp, (3,) a translation [m], or (6,) a
-            UR pose vector (x, y, z [m], rx, ry, rz [rad]) as in the controller's TCP settings. None: tcp =
-            flange.
+            UR pose vector (x, y, z [m], rx, ry, rz [rad]) as in the controller's TCP settings.
+            None: tcp = flange.
         ik_config: default `IKConfig` of the model's `ik`.
     """
     return RobotModel(get_ur_spec(name), _tcp_transform(tcp_offset), ik_config)

@@ -5,16 +5,13 @@ closed-form kinematics) is generated from the `URSpec` entries below, so they ca
 
 DH convention (standard / distal, as in UR's own "DH parameters for calculations of kinematics and dynamics"):
 frame i is reached from frame i-1 by ``Rz(theta_i) Tz(d_i) Tx(a_i) Rx(alpha_i)``. Frame 0 is `base`, the frame
-the
-UR controller reports poses in (``getActualTCPPose``); frame 6 is `flange` (ROS ``tool0``). ROS' ``base_link``
-is
-`base` rotated by pi about z; nothing here uses it.
+the UR controller reports poses in (``getActualTCPPose``); frame 6 is `flange` (ROS ``tool0``). ROS'
+``base_link`` is `base` rotated by pi about z; nothing here uses it.
 
 Joint limits: +-2 pi on every joint except the elbow, which is limited to +-pi. The forearm cannot pass
-through
-the upper arm, so an elbow angle beyond pi is never a different posture, only a self-collision; ur_description
-uses the same range. With it the closed-form elbow angle (an arccos, in [-pi, pi]) maps to exactly one joint
-value, so "elbow up" and "elbow down" are the sign of q[2].
+through the upper arm, so an elbow angle beyond pi is never a different posture, only a self-collision;
+ur_description uses the same range. With it the closed-form elbow angle (an arccos, in [-pi, pi]) maps to
+exactly one joint value, so "elbow up" and "elbow down" are the sign of q[2].
 """
 
 from __future__ import annotations

@@ -7,11 +7,9 @@ from the description parsed out of the same text, so both see the same numbers.
 
 Standard DH puts the joint rotation *before* the fixed part of each link transform
 (frame_i = frame_{i-1} Rz(q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)), while a URDF joint rotates *after* its fixed
-origin.
-So URDF link i's frame is DH frame i-1 rotated by q_i, and joint i+1's origin is the fixed part
+origin. So URDF link i's frame is DH frame i-1 rotated by q_i, and joint i+1's origin is the fixed part
 Tz(d_i) Tx(a_i) Rx(alpha_i) = (xyz = (a_i, 0, d_i), rpy = (alpha_i, 0, 0)), written exactly. A fixed joint
-with
-the last fixed part gives `flange` = DH frame 6. Floats are written with `repr`, which round-trips exactly.
+with the last fixed part gives `flange` = DH frame 6. Floats are written with `repr` (exact round trip).
 
 Collision capsules are written in standard URDF as a cylinder (the capsule's body) plus a sphere at each end;
 their union is exactly the capsule, every URDF parser understands them, and `parse_urdf` joins them back into
@@ -148,8 +146,8 @@ def rpy_from_rotation(R: np.ndarray) -> tuple[float, float, float]:
     """URDF roll-pitch-yaw [rad] of a rotation, R = Rz(yaw) Ry(pitch) Rx(roll); inverse of
     `rotation_from_rpy`.
 
-    At pitch = +-pi/2 (gimbal lock; common here, capsules often lie along x) roll is set to 0 and yaw absorbs
-    it.
+    At pitch = +-pi/2 (gimbal lock; common here, capsules often lie along x) roll is set to 0 and yaw takes
+    the rest.
     """
     pitch = math.atan2(-R[2, 0], math.hypot(R[0, 0], R[1, 0]))
     if math.hypot(R[0, 0], R[1, 0]) < 1e-12:

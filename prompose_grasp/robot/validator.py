@@ -2,9 +2,8 @@
 
 `CommandValidator` checks a joint move, a linear TCP move or a timed trajectory against a frozen
 `ValidatorConfig` (joint limits, joint step, speed and acceleration caps, a TCP workspace box, NaN) and
-returns
-the command it will actually send, or raises `UnsafeCommandError` naming the joint, the limit and the value.
-Nothing is silently changed unless the config asks for it (`clip_speed=True` lowers a too-high speed or
+returns the command it will actually send, or raises `UnsafeCommandError` naming the joint, the limit and the
+value. Nothing is silently changed unless the config asks for it (`clip_speed=True` lowers a too-high speed or
 acceleration argument to the cap and logs it; trajectories are never re-timed).
 """
 
@@ -48,8 +47,7 @@ class ValidatorConfig:
             smallest of them (the speed argument applies to the leading joint, whichever that is).
         max_joint_accel_rad_s2: joint acceleration cap [rad/s^2].
         max_move_step_rad: largest change of any joint in one `move_joints` [rad]. pi by default: a bigger
-            jump
-            is almost always a wrong IK representative (a wrist spun by a full turn).
+            jump is almost always a wrong IK representative (a wrist spun by a full turn).
         max_waypoint_step_rad: largest change of any joint between consecutive trajectory waypoints (and from
             the current position to the first one) [rad].
         max_tcp_speed_m_s, max_tcp_accel_m_s2: caps of `move_linear` [m/s], [m/s^2].
@@ -216,8 +214,7 @@ class CommandValidator:
         return LinearCommand(T_base_tcp=T.copy(), speed_m_s=speed, accel_m_s2=accel)
 
     def validate_trajectory(self, trajectory: JointTrajectory, q_current: ArrayLike) -> JointTrajectory:
-        """Check a timed trajectory from `q_current`: every waypoint finite and in limits and in the
-        workspace,
+        """Check a timed trajectory from `q_current`: every waypoint finite, in limits and in the workspace,
         consecutive steps below `max_waypoint_step_rad`, joint speeds (finite differences) below the caps and
         accelerations below `max_joint_accel_rad_s2`. Returns a copy of the trajectory that will be sent."""
         what = "follow"

@@ -107,6 +107,5 @@ def test_jacobian_matches_finite_differences(name):
                 Tp, Tm = robot.fk_frame(q + dq, frame), robot.fk_frame(q - dq, frame)
                 J_fd[:3, j] = (Tp[:3, 3] - Tm[:3, 3]) / (2 * h)
                 J_fd[3:, j] = so3_log(Tp[:3, :3] @ Tm[:3, :3].T) / (2 * h)
-            # Central differences with h = 1e-6 on ~1 m lever arms: truncation ~h^2, rounding ~1e-16/h =
-            # 1e-10.
+            # Central differences, h = 1e-6 on ~1 m lever arms: truncation ~h^2, rounding ~1e-16/h = 1e-10.
             np.testing.assert_allclose(J, J_fd, atol=1e-8)

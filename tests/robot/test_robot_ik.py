@@ -41,8 +41,7 @@ def test_closed_form_recovers_the_generating_configuration(name):
 
 
 def test_a_generic_pose_has_eight_distinct_branches():
-    # Most poses near the base admit all 8 (2 shoulder x 2 wrist x 2 elbow); the first seeded one found is
-    # used.
+    # Many poses admit all 8 (2 shoulder x 2 wrist x 2 elbow); the first seeded one found is used.
     robot = load_robot("ur5e")
     rng = np.random.default_rng(17)
     branches = np.empty((0, 6))
@@ -148,8 +147,7 @@ def test_tcp_frame_targets():
 def test_support_plane_excludes_branches_below_it():
     robot = load_robot("ur5e")
     config = IKConfig(support_plane_z_m=0.0, support_clearance_m=0.01)
-    # Flange above the table pointing down, in front of the robot: reachable elbow-up without touching the
-    # plane.
+    # Flange above the table pointing down, in front of the robot: reachable elbow-up, clear of the plane.
     T = make_T(np.diag([1.0, -1.0, -1.0]), [0.45, -0.15, 0.2])
     for method in ("closed_form", "mink"):
         result = robot.ik(T, q_seed=np.zeros(6), method=method, config=config)

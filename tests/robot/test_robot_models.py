@@ -57,8 +57,7 @@ def test_dh_table_and_limits_match_the_data_sheet(name):
 
 def test_ur5e_zero_pose_known_answer():
     # By hand from the DH table: at q = 0 the arm lies along -x; the flange sits at (a2 + a3, -(d4 + d6), d1 -
-    # d5)
-    # with its z axis along -y, i.e. R = Rx(pi/2). The UR5e teach pendant shows the same numbers at zero.
+    # d5) with its z axis along -y, i.e. R = Rx(pi/2). The UR5e teach pendant shows the same numbers at zero.
     d1, a2, a3, d4, d5, d6 = UR_DH["ur5e"]
     T = load_robot("ur5e").fk(np.zeros(6))
     expected_R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
