@@ -11,7 +11,7 @@ the UR controller reports poses in (``getActualTCPPose``); frame 6 is `flange` (
 Joint limits: +-2 pi on every joint except the elbow, which is limited to +-pi. The forearm cannot pass
 through the upper arm, so an elbow angle beyond pi is never a different posture, only a self-collision;
 ur_description uses the same range. With it the closed-form elbow angle (an arccos, in [-pi, pi]) maps to
-exactly one joint value, so "elbow up" and "elbow down" are the sign of q[2].
+exactly one joint value, and the two elbow branches are q[2] > 0 and q[2] < 0.
 """
 
 from __future__ import annotations
