@@ -21,10 +21,14 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from sim.camera import CameraSpec, RGBDFrame, look_at, mujoco_intrinsics
+from prompose_grasp.robot.interfaces import RGBDFrame
+from sim.arm import SimArm
+from sim.camera import CameraSpec, SimCamera, look_at, mujoco_intrinsics
+from sim.grippers import ParallelJawGripper, SuctionGripper
 from sim.noise import NOISE_PRESETS, DepthNoiseConfig, apply_depth_noise, noise_preset
 from sim.objects import FAMILIES, ObjectAsset, load_mesh_object, make_object
 from sim.scene_file import build_scene, load_scene, load_world
+from sim.robot_scene import add_robot
 from sim.world import Appearance, SceneBuilder, SimWorld, Support, upright_pose
 
 __all__ = [
@@ -34,10 +38,15 @@ __all__ = [
     "CameraSpec",
     "DepthNoiseConfig",
     "ObjectAsset",
+    "ParallelJawGripper",
     "RGBDFrame",
     "SceneBuilder",
+    "SimArm",
+    "SimCamera",
     "SimWorld",
+    "SuctionGripper",
     "Support",
+    "add_robot",
     "apply_depth_noise",
     "build_scene",
     "load_mesh_object",

@@ -27,7 +27,7 @@ def _view(args: argparse.Namespace) -> int:
         images = []
         for name in cameras:
             frame = world.render(name, rng=rng)
-            color = frame.color
+            color = frame.rgb
             if args.boxes:
                 gts = [g for g in world.ground_truth(name) if g.t_cam_obj_m[2] > 0]
                 boxes = [(g.R_cam_obj, g.t_cam_obj_m, g.size_m) for g in gts]

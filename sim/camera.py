@@ -20,19 +20,24 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from prompose_grasp.errors import InvalidInputError
+from prompose_grasp.errors import CameraError, DeviceNotConnectedError, InvalidInputError, UnknownNameError
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.se3 import as_transform, make_T
+from prompose_grasp.robot.interfaces import RGBDCamera, RGBDFrame
 from sim.noise import NOISE_PRESETS, DepthNoiseConfig
+
+if TYPE_CHECKING:
+    from sim.world import SimWorld
 
 __all__ = [
     "T_CAMGL_CAM",
     "CameraSpec",
-    "RGBDFrame",
+    "SimCamera",
     "look_at",
     "mujoco_intrinsics",
 ]
@@ -106,22 +111,47 @@ class CameraSpec:
         return mujoco_intrinsics(self.width, self.height, self.fovy_deg)
 
 
-@dataclass(frozen=True, eq=False)
-class RGBDFrame:
-    """One RGB-D frame, colour and depth aligned pixel for pixel.
+class SimCamera(RGBDCamera):
+    """A camera of a `SimWorld` as an `RGBDCamera` device: `capture()` renders the current sim state.
 
-    Attributes:
-        color: (H, W, 3) uint8 RGB.
-        depth_m: (H, W) float32 depth along the optical axis [m]; 0 where the sensor gives no reading.
-        intrinsics: the pinhole model of both images.
-        T_world_cam: (4, 4) pose of the OpenCV camera frame in the world [m].
-        camera: the camera's name.
-        sim_time_s: simulation time of the frame [s].
+    Frames are the library's `RGBDFrame` with the camera's noise model applied, `timestamp_s` the sim time
+    and `T_base_cam` the camera pose in the arm's base frame (the world frame when the scene has no arm);
+    wrist cameras follow the flange. `rng` draws the sensor noise; it is required unless the camera is clean.
+
+    >>> with SimCamera(world, "front", rng=np.random.default_rng(0)) as cam:  # doctest: +SKIP
+    ...     frame = cam.capture()
     """
 
-    color: np.ndarray
-    depth_m: np.ndarray
-    intrinsics: CameraIntrinsics
-    T_world_cam: np.ndarray
-    camera: str
-    sim_time_s: float
+    def __init__(self, world: SimWorld, name: str, rng: np.random.Generator | None = None):
+        if name not in world.cameras:
+            raise UnknownNameError("camera", name, sorted(world.cameras))
+        spec = world.cameras[name]
+        if spec.noise != DepthNoiseConfig(name=spec.noise.name) and rng is None:
+            raise InvalidInputError(f"camera {name!r} uses noise model {spec.noise.name!r}: pass a seeded rng")
+        self.world = world
+        self.name = name
+        self.rng = rng
+        self._connected = False
+
+    @property
+    def intrinsics(self) -> CameraIntrinsics:
+        return self.world.intrinsics(self.name)
+
+    def connect(self) -> None:
+        self._connected = True
+
+    def disconnect(self) -> None:
+        self._connected = False
+
+    @property
+    def is_connected(self) -> bool:
+        return self._connected
+
+    def capture(self) -> RGBDFrame:
+        """Render the camera now (no time passes); raises `CameraError` when the renderer fails."""
+        if not self._connected:
+            raise DeviceNotConnectedError(f"SimCamera {self.name!r} is not connected; use `with camera:`")
+        try:
+            return self.world.render(self.name, rng=self.rng)
+        except Exception as exc:  # an OpenGL/EGL failure should surface as the library's camera error
+            raise CameraError(f"sim camera {self.name!r} could not render: {exc}") from exc

@@ -254,7 +254,7 @@ def generate_scene(index: int, config: DatasetConfig, is_test: bool) -> int:
             gts = world.ground_truth("cam")
             depth_mm = np.clip(np.rint(frame.depth_m * 1000.0), 0, 65535).astype(np.uint16)
             stem = out / f"{k:06d}"
-            _write_png(Path(f"{stem}-color.png"), frame.color[..., ::-1])
+            _write_png(Path(f"{stem}-color.png"), frame.rgb[..., ::-1])
             _write_png(Path(f"{stem}-depth.png"), depth_mm)
             _write_png(Path(f"{stem}-mask.png"), mask.astype(np.uint8))
             objects = []
@@ -283,7 +283,7 @@ def generate_scene(index: int, config: DatasetConfig, is_test: bool) -> int:
                 "K": frame.intrinsics.K.tolist(),
                 "depth_scale_m": 0.001,
                 "noise": config.noise,
-                "T_world_cam": frame.T_world_cam.tolist(),
+                "T_world_cam": world.T_world_cam("cam").tolist(),
                 "objects": objects,
             }
             tmp = Path(f"{stem}-meta.json.tmp")

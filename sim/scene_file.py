@@ -5,7 +5,7 @@ The format is DESIGN.md's "Sim scene file"; docs/sim.md documents every key. In 
     version: 1
     name: tabletop_household
     seed: 0                                   # random placements and appearances
-    robot: {model: ur5e, base_pose: {pos: [0, -0.45, 0.75]}}     # parsed and checked; built later
+    robot: {model: ur5e, base_pose: {pos: [0, -0.55, 0.75], rpy_deg: [0, 0, -90]}}   # UR base frame
     gripper: {type: parallel_jaw}                                # parallel_jaw | suction
     supports:
       - {name: table, type: table, size_m: [1.2, 0.8], height_m: 0.75}
@@ -47,6 +47,7 @@ from prompose_grasp.geometry.se3 import R_from_quat_wxyz, make_T, random_rotatio
 from sim.camera import CameraSpec, look_at
 from sim.noise import NOISE_PRESETS, noise_preset
 from sim.objects import FAMILIES, SYMMETRIES, ObjectAsset, load_mesh_object, make_object
+from sim.robot_scene import add_robot
 from sim.world import (
     Appearance,
     SceneBuilder,
@@ -69,7 +70,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: Robot models a scene may name (the UR family); the arm itself is attached by the robot layer.
+#: Robot models a scene may name (the UR family); built by `sim.robot_scene.add_robot`.
 ROBOT_MODELS = ("ur3e", "ur5e", "ur10e", "ur16e", "ur5")
 #: Gripper types a scene may name.
 GRIPPER_TYPES = ("parallel_jaw", "suction")
@@ -216,8 +217,12 @@ def parse_scene(doc: Mapping[str, Any], base_dir: str | Path = ".") -> SceneSpec
             raise UnknownNameError("robot", robot.get("model"), ROBOT_MODELS)
         if "base_pose" in robot:
             parse_pose(robot["base_pose"], "robot.base_pose")
+        if "home_q_rad" in robot:
+            _vec(robot["home_q_rad"], 6, "robot.home_q_rad")
     gripper = doc.get("gripper")
     if gripper is not None:
+        if robot is None:
+            raise InvalidInputError("a gripper needs a robot: add `robot: {model: ...}` to the scene")
         _check_keys(gripper, ("type",), "gripper")
         if gripper.get("type") not in GRIPPER_TYPES:
             raise UnknownNameError("gripper", gripper.get("type"), GRIPPER_TYPES)
@@ -531,6 +536,14 @@ def build_scene(spec: SceneSpec, seed: int | None = None, settle: bool | None = 
             asset, name, sup.T_world_surface @ T_local, o.get("prompt"), _appearance(o, spec.base_dir, rng)
         )
 
+    if spec.robot is not None:  # before the cameras: a wrist camera mounts on the arm's flange
+        add_robot(
+            b,
+            spec.robot["model"],
+            parse_pose(spec.robot.get("base_pose", {}), "robot.base_pose"),
+            gripper=(spec.gripper or {}).get("type"),
+            home_q=spec.robot.get("home_q_rad"),
+        )
     for c in spec.cameras:
         noise = NOISE_PRESETS[c.get("noise", "clean")]
         size = dict(
@@ -558,14 +571,6 @@ def build_scene(spec: SceneSpec, seed: int | None = None, settle: bool | None = 
             )
     for p in spec.place_targets:
         b.add_place_target(p["name"], supports[p["support"]])
-    if spec.robot is not None:
-        log.info(
-            "scene %r names robot %r and gripper %r; the robot layer attaches them (not built here)",
-            spec.name,
-            spec.robot.get("model"),
-            (spec.gripper or {}).get("type"),
-        )
-
     world = b.build()
     if spec.settle if settle is None else settle:
         world.settle()

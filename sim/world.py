@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,7 +35,8 @@ from prompose_grasp.geometry.se3 import (
     make_T,
     quat_wxyz_from_R,
 )
-from sim.camera import T_CAMGL_CAM, CameraSpec, RGBDFrame
+from prompose_grasp.robot.interfaces import RGBDFrame
+from sim.camera import T_CAMGL_CAM, CameraSpec
 from sim.noise import DepthNoiseConfig, apply_color_noise, apply_depth_noise
 from sim.objects import ObjectAsset
 
@@ -267,6 +268,7 @@ class SceneBuilder:
         self._cameras: dict[str, CameraSpec] = {}
         self._names: set[str] = set()
         self._n_assets = 0
+        self._robot = None  # set by sim.robot_scene.add_robot
 
     # --------------------------------------------------------------------------------------------------------
     # helpers
@@ -709,6 +711,8 @@ class SceneBuilder:
 
     def build(self) -> SimWorld:
         """Compile the spec into a `SimWorld` (model, data, renderers)."""
+        if self._robot is not None:
+            self._robot.before_compile(self)
         try:
             model = self.spec.compile()
         except Exception as exc:  # MuJoCo raises ValueError with the compiler's message
@@ -734,7 +738,10 @@ class SceneBuilder:
                     geom_ids,
                 )
             )
-        return SimWorld(model, objects, dict(self._cameras), dict(self._supports), dict(self._place_targets))
+        robot = None if self._robot is None else self._robot.resolve(model)
+        return SimWorld(
+            model, objects, dict(self._cameras), dict(self._supports), dict(self._place_targets), robot
+        )
 
 
 class SimWorld:
@@ -750,9 +757,13 @@ class SimWorld:
         cameras: dict[str, CameraSpec],
         supports: dict[str, Support],
         place_targets: dict[str, Support],
+        robot=None,
     ):
         self.model = model
         self.data = mujoco.MjData(model)
+        #: `sim.robot_scene.RobotInfo` of the arm and gripper, or None for a scene without a robot.
+        self.robot = robot
+        self._step_hooks: list[Callable[[SimWorld], None]] = []
         self.objects: tuple[ObjectInfo, ...] = tuple(objects)
         self.cameras = cameras
         self.supports = supports
@@ -762,22 +773,42 @@ class SimWorld:
         self._geom_instance = np.zeros(model.ngeom + 1, dtype=np.int32)  # last slot: background (-1)
         for o in self.objects:
             self._geom_instance[list(o.visual_geom_ids)] = o.instance_id
+        if self.robot is not None:
+            self.robot.apply_home(self.model, self.data)
         mujoco.mj_forward(self.model, self.data)
 
     # --------------------------------------------------------------------------------------------------------
     # simulation
 
     def reset(self) -> None:
-        """Back to the initial state (objects where they were added, time 0)."""
+        """Back to the initial state (objects where they were added, the arm at home, time 0)."""
         mujoco.mj_resetData(self.model, self.data)
+        if self.robot is not None:
+            self.robot.apply_home(self.model, self.data)
         mujoco.mj_forward(self.model, self.data)
 
     def step(self, n: int = 1) -> None:
-        """Advance `n` physics steps of `model.opt.timestep` seconds."""
+        """Advance `n` physics steps of `model.opt.timestep` seconds (running the step hooks after each)."""
         if n < 0:
             raise InvalidInputError(f"n must be >= 0, got {n}")
-        if n:
+        if not n:
+            return
+        if not self._step_hooks:
             mujoco.mj_step(self.model, self.data, nstep=int(n))
+            return
+        for _ in range(int(n)):
+            mujoco.mj_step(self.model, self.data)
+            for hook in self._step_hooks:
+                hook(self)
+
+    def add_step_hook(self, hook: Callable[[SimWorld], None]) -> None:
+        """Call `hook(world)` after every physics step (the suction gripper checks its load this way)."""
+        self._step_hooks.append(hook)
+
+    @property
+    def T_world_base(self) -> np.ndarray:
+        """(4, 4) pose of the arm's base in the world; the identity when the scene has no arm."""
+        return np.eye(4) if self.robot is None else self.robot.T_world_base.copy()
 
     def forward(self) -> None:
         """Recompute derived quantities (poses, contacts) without advancing time."""
@@ -926,7 +957,12 @@ class SimWorld:
     def render(
         self, camera: str, rng: np.random.Generator | None = None, noise: DepthNoiseConfig | None = None
     ) -> RGBDFrame:
-        """One RGB-D frame with the camera's sensor model (or `noise`); `rng` is needed unless it is clean."""
+        """One RGB-D frame with the camera's sensor model (or `noise`); `rng` is needed unless it is clean.
+
+        Returns the library's `prompose_grasp.robot.RGBDFrame`: `rgb`, `depth_m`, `intrinsics`,
+        `timestamp_s` (sim time) and `T_base_cam` in the arm's base frame (the world frame without an arm).
+        The world pose of the camera is `T_world_cam(camera)`.
+        """
         spec = self._camera(camera)
         model = noise or spec.noise
         color, depth = self.render_clean(camera)
@@ -937,13 +973,15 @@ class SimWorld:
                 )
             depth = apply_depth_noise(depth, model, rng)
             color = apply_color_noise(color, model, rng)
+        T_base_cam = self.T_world_cam(camera)
+        if self.robot is not None:
+            T_base_cam = self.robot.T_base_world @ T_base_cam
         return RGBDFrame(
-            color=color,
+            rgb=color,
             depth_m=depth,
             intrinsics=spec.intrinsics,
-            T_world_cam=self.T_world_cam(camera),
-            camera=camera,
-            sim_time_s=float(self.data.time),
+            timestamp_s=float(self.data.time),
+            T_base_cam=T_base_cam,
         )
 
     def ground_truth_mask(self, camera: str) -> np.ndarray:

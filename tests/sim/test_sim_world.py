@@ -142,17 +142,21 @@ def test_scenario_loads_resets_steps_and_renders(path):
         world.step(1000)
         assert world.is_finite()
         world.reset()
-        np.testing.assert_array_equal(world.data.qpos, world.model.qpos0)
+        if world.robot is not None:  # the arm resets to its home configuration
+            np.testing.assert_array_equal(world.data.qpos[world.robot.qpos_adr], world.robot.home_q)
+        free = [world.model.jnt_qposadr[world.model.body_jntadr[o.body_id]] for o in world.objects]
+        for adr in free:  # every object back where it was added
+            np.testing.assert_array_equal(world.data.qpos[adr : adr + 7], world.model.qpos0[adr : adr + 7])
         world.step(1000)
         assert world.is_finite() and start.shape == world.data.qpos.shape
         rng = np.random.default_rng(0)
         for cam in world.cameras:
             spec_c = world.cameras[cam]
             frame = world.render(cam, rng=rng)
-            assert frame.color.shape == (spec_c.height, spec_c.width, 3) and frame.color.dtype == np.uint8
+            assert frame.rgb.shape == (spec_c.height, spec_c.width, 3) and frame.rgb.dtype == np.uint8
             assert frame.depth_m.shape == (spec_c.height, spec_c.width) and frame.depth_m.dtype == np.float32
             assert np.isfinite(frame.depth_m).all() and (frame.depth_m > 0).mean() > 0.2
-            assert frame.color.std() > 5  # not a blank image
+            assert frame.rgb.std() > 5  # not a blank image
 
 
 def _doc(**over):

@@ -1,0 +1,332 @@
+"""`SimArm`: the simulated UR arm of a `SimWorld` as an `Arm` device.
+
+Every command first goes through the shared `CommandValidator` (the robot layer's, the same one `FakeArm` and
+the hardware arm use); what it returns is what is executed, and a refused command raises
+`UnsafeCommandError` before anything in the simulation changes. Motions are stepped in the simulation (the
+call blocks until the motion is done and the arm has settled), one physics step per control period (2 ms:
+500 Hz servo rate):
+
+- `move_joints`: a straight line in joint space with a trapezoidal speed profile; the joint with the largest
+  move runs at `speed` / `accel`, the others are scaled to arrive together (as UR's `movej`).
+- `move_linear`: a straight line of the TCP in `base` (position linear, orientation along the geodesic) with
+  a trapezoidal profile over its length (rotation counts `ROTATION_LENGTH_M` per radian); the closed-form IK
+  nearest the previous waypoint gives joint waypoints every `waypoint_dt_s`, which are validated as a timed
+  trajectory (joint limits, joint steps, joint speeds and accelerations, workspace) before the arm moves.
+- `follow`: a validated timed joint trajectory, interpolated with monotone cubic (PCHIP) splines so it never
+  overshoots between waypoints.
+
+Control: MuJoCo position servos (see `sim.robot_scene`) with velocity feed-forward (the target is advanced by
+`kv/kp * qd_des`, which makes the servo force `kp (q_des - q) + kv (qd_des - qd)`) and inertial feed-forward
+`M(q) qdd_des` as an applied joint force; gravity is compensated per body.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.interpolate import PchipInterpolator
+
+from prompose_grasp.errors import DeviceNotConnectedError, InvalidInputError, UnreachableError
+from prompose_grasp.geometry.se3 import make_T, so3_exp, so3_log
+from prompose_grasp.robot.interfaces import Arm, JointCommand, JointTrajectory, LinearCommand
+from prompose_grasp.robot.model import RobotModel
+from prompose_grasp.robot.validator import CommandValidator, ValidatorConfig
+
+__all__ = ["ROTATION_LENGTH_M", "SimArm", "SimTiming", "trapezoid_profile"]
+
+log = logging.getLogger(__name__)
+
+#: Path length a TCP rotation of one radian counts as in `move_linear` timing [m/rad].
+ROTATION_LENGTH_M = 0.2
+
+
+@dataclass(frozen=True)
+class SimTiming:
+    """Simulated versus wall-clock time spent in an arm's motions.
+
+    Attributes:
+        steps: physics steps taken by the arm's commands.
+        sim_time_s: simulated time they cover [s].
+        wall_time_s: wall-clock time they took [s].
+    """
+
+    steps: int
+    sim_time_s: float
+    wall_time_s: float
+
+    @property
+    def realtime_factor(self) -> float:
+        """Simulated seconds per wall-clock second (> 1: faster than real time)."""
+        return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else math.inf
+
+
+def trapezoid_profile(
+    length: float, speed: float, accel: float, t_s: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Distance, speed and acceleration of a trapezoidal (or triangular) profile over `length` at times t_s.
+
+    Args:
+        length: distance to cover (>= 0), any unit u.
+        speed, accel: cruise speed [u/s] and acceleration [u/s^2], both > 0.
+        t_s: (N,) times [s].
+
+    Returns:
+        s (N,), s' (N,), s'' (N,) at t_s (clamped to [0, duration]), and the duration [s].
+    """
+    t = np.clip(np.asarray(t_s, dtype=np.float64), 0.0, None)
+    if length <= 0.0:
+        z = np.zeros_like(t)
+        return z, z, z, 0.0
+    t_acc = speed / accel
+    if accel * t_acc**2 >= length:  # never reaches cruise speed: a triangle
+        t_acc = math.sqrt(length / accel)
+        speed = accel * t_acc
+    t_cruise = (length - accel * t_acc**2) / speed
+    duration = 2.0 * t_acc + t_cruise
+    t = np.minimum(t, duration)
+    s = np.empty_like(t)
+    v = np.empty_like(t)
+    a = np.empty_like(t)
+    up = t < t_acc
+    down = t > t_acc + t_cruise
+    mid = ~(up | down)
+    s[up], v[up], a[up] = 0.5 * accel * t[up] ** 2, accel * t[up], accel
+    tm = t[mid] - t_acc
+    s[mid], v[mid], a[mid] = 0.5 * accel * t_acc**2 + speed * tm, speed, 0.0
+    td = duration - t[down]
+    s[down], v[down], a[down] = length - 0.5 * accel * td**2, accel * td, -accel
+    end = t >= duration
+    s[end], v[end], a[end] = length, 0.0, 0.0
+    return s, v, a, duration
+
+
+class SimArm(Arm):
+    """The arm of a `SimWorld` built with a robot (`sim.robot_scene.add_robot` or a scene file's `robot`).
+
+    Args:
+        world: the `SimWorld`; its physics is stepped by the motion commands.
+        robot_model: the arm's `RobotModel` (IK for `move_linear`, the tcp offset of `tcp_pose`); the world's
+            own (tcp = the gripper's TCP) if None. It must be the same UR model as the world's arm.
+        validator: the command validator; `CommandValidator(ValidatorConfig.for_robot(robot_model),
+            fk_tcp=robot_model.fk_tcp)` if None.
+        waypoint_dt_s: spacing of the IK waypoints of `move_linear` [s].
+        settle_speed_rad_s: a motion is done when every joint is slower than this after the profile ends.
+        max_settle_s: longest wait for that after the profile [s].
+    """
+
+    def __init__(
+        self,
+        world,
+        robot_model: RobotModel | None = None,
+        validator: CommandValidator | None = None,
+        waypoint_dt_s: float = 0.016,
+        settle_speed_rad_s: float = 2e-3,
+        max_settle_s: float = 0.5,
+    ):
+        info = getattr(world, "robot", None)
+        if info is None:
+            raise InvalidInputError("SimArm needs a world with a robot (scene `robot:` or sim.add_robot)")
+        robot = info.robot if robot_model is None else robot_model
+        if robot.name != info.name:
+            raise InvalidInputError(f"robot_model is {robot.name!r} but the world's arm is {info.name!r}")
+        if not (math.isfinite(waypoint_dt_s) and waypoint_dt_s >= world.model.opt.timestep):
+            raise InvalidInputError(f"waypoint_dt_s must be >= the time step, got {waypoint_dt_s}")
+        self.world = world
+        self.info = info
+        self.robot = robot
+        self.validator = validator or CommandValidator(ValidatorConfig.for_robot(robot), fk_tcp=robot.fk_tcp)
+        self.waypoint_dt_s = float(waypoint_dt_s)
+        self.settle_speed_rad_s = float(settle_speed_rad_s)
+        self.max_settle_s = float(max_settle_s)
+        self._stop = threading.Event()
+        self._connected = False
+        self._steps = 0
+        self._wall_s = 0.0
+        m = world.model
+        self._dt = float(m.opt.timestep)
+        self._ff_gain = info.kv / info.kp  # velocity feed-forward as a target advance [s]
+        self._vec = np.zeros(m.nv)
+        self._res = np.zeros(m.nv)
+
+    # ------------------------------------------------------------------ device
+    def connect(self) -> None:
+        self._connected = True
+        self._stop.clear()
+
+    def disconnect(self) -> None:
+        self._connected = False
+
+    @property
+    def is_connected(self) -> bool:
+        return self._connected
+
+    def _require(self) -> None:
+        if not self._connected:
+            raise DeviceNotConnectedError("SimArm is not connected; call connect() or use `with arm:`")
+
+    # ------------------------------------------------------------------ state
+    def joint_positions(self) -> np.ndarray:
+        """(6,) float64 measured joint positions [rad]."""
+        self._require()
+        return self.world.data.qpos[self.info.qpos_adr].copy()
+
+    def joint_velocities(self) -> np.ndarray:
+        """(6,) float64 measured joint speeds [rad/s]."""
+        self._require()
+        return self.world.data.qvel[self.info.dof_adr].copy()
+
+    def joint_targets(self) -> np.ndarray:
+        """(6,) float64 servo set-points [rad] (where the arm is told to be)."""
+        return self.world.data.ctrl[self.info.actuator_ids].copy()
+
+    def T_world_flange(self) -> np.ndarray:
+        """(4, 4) flange pose in the world from the simulation state [m]."""
+        m, d = self.world.model, self.world.data
+        mujoco.mj_kinematics(m, d)  # body poses of the current qpos (mj_step leaves them one step behind)
+        b = self.info.flange_body
+        return make_T(d.xmat[b].reshape(3, 3), d.xpos[b])
+
+    def tcp_pose(self) -> np.ndarray:
+        """(4, 4) T_base_tcp from the simulated flange pose (not from the joint readings)."""
+        self._require()
+        return self.info.T_base_world @ self.T_world_flange() @ self.robot.T_flange_tcp
+
+    def timing(self) -> SimTiming:
+        """Simulated and wall-clock time spent in this arm's motions so far."""
+        return SimTiming(self._steps, self._steps * self._dt, self._wall_s)
+
+    # ------------------------------------------------------------------ commands
+    def move_joints(self, q: ArrayLike, speed: float, accel: float) -> JointCommand:
+        self._require()
+        q0 = self.joint_targets()
+        command = self.validator.validate_joint_move(q, speed, accel, q_current=q0)
+        delta = command.q - q0
+        dist = float(np.max(np.abs(delta)))
+        _, _, _, duration = trapezoid_profile(dist, command.speed_rad_s, command.accel_rad_s2, np.zeros(1))
+        t = self._step_times(duration)
+        s, sd, sdd, _ = trapezoid_profile(dist, command.speed_rad_s, command.accel_rad_s2, t)
+        unit = delta / dist if dist > 0 else np.zeros(6)
+        self._execute(
+            q0 + np.outer(s, unit), np.outer(sd, unit), np.outer(sdd, unit), command.q
+        )
+        return command
+
+    def move_linear(self, T_base_tcp: ArrayLike, speed: float, accel: float) -> LinearCommand:
+        self._require()
+        command = self.validator.validate_linear_move(T_base_tcp, speed, accel)
+        q0 = self.joint_targets()
+        T0, T1 = self.robot.fk_tcp(q0), command.T_base_tcp
+        dp = T1[:3, 3] - T0[:3, 3]
+        w = so3_log(T0[:3, :3].T @ T1[:3, :3])
+        length = max(float(np.linalg.norm(dp)), float(np.linalg.norm(w)) * ROTATION_LENGTH_M)
+        if length < 1e-9:
+            return command
+        _, _, _, duration = trapezoid_profile(length, command.speed_m_s, command.accel_m_s2, np.zeros(1))
+        n = max(1, math.ceil(duration / self.waypoint_dt_s))
+        t_way = np.linspace(duration / n, duration, n)
+        s, _, _, _ = trapezoid_profile(length, command.speed_m_s, command.accel_m_s2, t_way)
+        q_way = np.empty((n, 6))
+        q_prev = q0
+        for k, frac in enumerate(s / length):
+            T = make_T(T0[:3, :3] @ so3_exp(frac * w), T0[:3, 3] + frac * dp)
+            result = self.robot.ik(T, q_seed=q_prev, frame="tcp")
+            if not result.success:
+                raise UnreachableError(
+                    f"move_linear: the line leaves the reachable space at {100 * frac:.0f} % of its length "
+                    f"(TCP at {np.round(T[:3, 3], 4).tolist()} m in base): {result.message}"
+                )
+            q_way[k] = q_prev = result.q
+        sent = self.validator.validate_trajectory(JointTrajectory(t_s=t_way, q=q_way), q0)
+        self._run_trajectory(sent, q0)
+        return command
+
+    def follow(self, trajectory: JointTrajectory) -> JointTrajectory:
+        self._require()
+        q0 = self.joint_targets()
+        sent = self.validator.validate_trajectory(trajectory, q0)
+        self._run_trajectory(sent, q0)
+        return sent
+
+    def stop(self) -> None:
+        """Decelerate the running motion to a stop at the validator's joint acceleration cap (thread-safe)."""
+        self._require()
+        self._stop.set()
+
+    # ------------------------------------------------------------------ execution
+    def _step_times(self, duration_s: float) -> np.ndarray:
+        n = max(1, math.ceil(duration_s / self._dt - 1e-9))
+        return np.arange(1, n + 1) * self._dt
+
+    def _run_trajectory(self, trajectory: JointTrajectory, q0: np.ndarray) -> None:
+        t_knots, q_knots = trajectory.t_s, trajectory.q
+        if t_knots[0] > 0.0:  # the motion starts at the current set-point
+            t_knots = np.concatenate([[0.0], t_knots])
+            q_knots = np.vstack([q0, q_knots])
+        if len(t_knots) < 2:
+            self._execute(q_knots[-1][None], np.zeros((1, 6)), np.zeros((1, 6)), q_knots[-1])
+            return
+        spline = PchipInterpolator(t_knots, q_knots, axis=0)
+        t = t_knots[0] + self._step_times(t_knots[-1] - t_knots[0])
+        t = np.minimum(t, t_knots[-1])
+        self._execute(spline(t), spline(t, 1), spline(t, 2), q_knots[-1])
+
+    def _apply(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> None:
+        m, d, info = self.world.model, self.world.data, self.info
+        d.ctrl[info.actuator_ids] = q + self._ff_gain * qd
+        self._vec[info.dof_adr] = qdd
+        mujoco.mj_mulM(m, d, self._res, self._vec)  # inertia of the arm (and what it carries rigidly)
+        d.qfrc_applied[info.dof_adr] = self._res[info.dof_adr]
+
+    def _execute(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, q_final: np.ndarray) -> None:
+        """Step the servo set-points (N, 6) through the physics, then hold `q_final` until the arm settles."""
+        self._stop.clear()
+        world, d, info = self.world, self.world.data, self.info
+        wall0 = time.perf_counter()
+        steps = 0
+        stopped = False
+        for k in range(len(q)):
+            if self._stop.is_set():
+                stopped = True
+                q_final = self._decelerate(q[k - 1] if k else q[0], qd[k - 1] if k else qd[0])
+                break
+            self._apply(q[k], qd[k], qdd[k])
+            world.step(1)
+            steps += 1
+        d.ctrl[info.actuator_ids] = q_final
+        d.qfrc_applied[info.dof_adr] = 0.0
+        max_steps = int(round(self.max_settle_s / self._dt))
+        for _ in range(max_steps):
+            if np.max(np.abs(d.qvel[info.dof_adr])) < self.settle_speed_rad_s:
+                break
+            world.step(1)
+            steps += 1
+        self._steps += steps
+        self._wall_s += time.perf_counter() - wall0
+        if stopped:
+            log.info("SimArm: motion stopped at %s rad", np.round(q_final, 4).tolist())
+        if not world.is_finite():
+            raise InvalidInputError("the simulation diverged (non-finite state) during an arm motion")
+
+    def _decelerate(self, q0: np.ndarray, v0: np.ndarray) -> np.ndarray:
+        """Ramp every joint's set-point speed from v0 to zero at the acceleration cap; returns the end q."""
+        a_max = self.validator.config.max_joint_accel_rad_s2
+        t_stop = np.abs(v0) / a_max
+        t = self._step_times(float(np.max(t_stop)))
+        tt = np.minimum(t[:, None], t_stop[None, :])
+        sign = np.sign(v0)
+        q = q0 + v0 * tt - 0.5 * sign * a_max * tt**2
+        qd = v0 - sign * a_max * tt
+        qdd = np.where(t[:, None] < t_stop[None, :], -sign * a_max, 0.0)
+        for k in range(len(t)):
+            self._apply(q[k], qd[k], qdd[k])
+            self.world.step(1)
+            self._steps += 1
+        self._stop.clear()
+        return q[-1]
