@@ -5,12 +5,15 @@ The curated public API lives here; subpackages hold the rest:
 - `prompose_grasp.geometry`: SE(3), `Pose9D`, oriented-box IoU, point clouds, Chamfer distance
   (numpy + scipy only).
 - `prompose_grasp.eval`: NOCS-compatible 9-DoF pose metrics (`compute_nocs_map`).
+- `prompose_grasp.robot`: UR models (Pinocchio + MuJoCo from one DH table), FK/IK, trajectories, the
+  `Arm` / `Gripper` / `RGBDCamera` interfaces and the shared command validator.
 """
 
 from importlib.metadata import version as _version
 
 from prompose_grasp.errors import (
     CameraError,
+    DeviceNotConnectedError,
     InvalidInputError,
     MissingDependencyError,
     PromposeError,
@@ -19,17 +22,38 @@ from prompose_grasp.errors import (
     UnsafeCommandError,
 )
 from prompose_grasp.geometry import Pose9D
+from prompose_grasp.robot import (
+    Arm,
+    CommandValidator,
+    FakeArm,
+    Gripper,
+    IKResult,
+    RGBDCamera,
+    RGBDFrame,
+    RobotModel,
+    load_robot,
+)
 
 __version__ = _version("prompose-grasp")
 
 __all__ = [
+    "Arm",
     "CameraError",
+    "CommandValidator",
+    "DeviceNotConnectedError",
+    "FakeArm",
+    "Gripper",
+    "IKResult",
     "InvalidInputError",
     "MissingDependencyError",
     "Pose9D",
     "PromposeError",
+    "RGBDCamera",
+    "RGBDFrame",
+    "RobotModel",
     "UnknownNameError",
     "UnreachableError",
     "UnsafeCommandError",
     "__version__",
+    "load_robot",
 ]

@@ -19,6 +19,7 @@ from prompose_grasp.robot.interfaces import (
 )
 from prompose_grasp.robot.model import RobotModel, load_robot
 from prompose_grasp.robot.mujoco_model import add_arm_to_spec, add_support_plane, ur_mjspec
+from prompose_grasp.robot.trajectory import LinearTrajectory, joint_trajectory, linear_trajectory
 from prompose_grasp.robot.ur_models import JOINT_NAMES, UR_MODELS, URSpec, get_ur_spec, known_robots
 from prompose_grasp.robot.urdf import ur_urdf
 from prompose_grasp.robot.validator import CommandValidator, ValidatorConfig
@@ -39,6 +40,7 @@ __all__ = [
     "JointCommand",
     "JointTrajectory",
     "LinearCommand",
+    "LinearTrajectory",
     "RGBDCamera",
     "RGBDFrame",
     "RobotModel",
@@ -47,7 +49,9 @@ __all__ = [
     "add_arm_to_spec",
     "add_support_plane",
     "get_ur_spec",
+    "joint_trajectory",
     "known_robots",
+    "linear_trajectory",
     "load_robot",
     "ur_mjspec",
     "ur_urdf",
