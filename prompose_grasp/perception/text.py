@@ -71,7 +71,9 @@ def _as_text_list(texts: str | Sequence[str]) -> list[str]:
         if not isinstance(t, str):
             raise InvalidInputError(f"texts[{i}] must be a str, got {type(t).__name__}")
         if not t.strip():
-            raise InvalidInputError(f"texts[{i}] is blank ({t!r}); a text needs at least one visible character")
+            raise InvalidInputError(
+                f"texts[{i}] is blank ({t!r}); a text needs at least one visible character"
+            )
     return items
 
 
@@ -107,10 +109,14 @@ class MiniLMTextEncoder:
         # A local folder plus local_files_only: nothing is ever fetched from the hub.
         self._model = SentenceTransformer(str(path), device=device, local_files_only=True)
         self._model.eval()
-        dim_fn = getattr(self._model, "get_embedding_dimension", None) or getattr(
-            self._model, "get_sentence_embedding_dimension"
-        )
-        self._dim = int(dim_fn())
+        # sentence-transformers >= 5 renamed the method; older releases only have the long name
+        dim_fn = getattr(self._model, "get_embedding_dimension", None)
+        if dim_fn is None:
+            dim_fn = self._model.get_sentence_embedding_dimension
+        dim = dim_fn()
+        if dim is None:
+            raise InvalidInputError(f"model at {str(path)!r} does not state its embedding width")
+        self._dim = int(dim)
         self.model_path = path
         self.device = device
         log.info("loaded MiniLM text encoder from %s on %s (dim %d)", path, device, self._dim)
@@ -123,7 +129,7 @@ class MiniLMTextEncoder:
     @property
     def max_tokens(self) -> int:
         """Texts are truncated to this many tokens (special tokens included)."""
-        return int(self._model.max_seq_length)
+        return int(self._model.max_seq_length or 0)
 
     def encode(self, texts: str | Sequence[str]) -> np.ndarray:
         """Sentence embeddings: (N, D) float32, rows L2-normalised; deterministic for a given input."""

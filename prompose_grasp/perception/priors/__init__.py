@@ -11,6 +11,7 @@ from prompose_grasp.perception.priors.library import (
     DEFAULT_MATCH_THRESHOLD,
     PriorLibrary,
     core_phrase,
+    head_noun,
     superquadric_prior,
 )
 from prompose_grasp.perception.priors.prior import (
@@ -39,6 +40,7 @@ __all__ = [
     "core_phrase",
     "fit_superquadric",
     "from_mesh",
+    "head_noun",
     "normalize_to_unit_box",
     "superquadric_inside_outside",
     "superquadric_mesh",

@@ -56,7 +56,7 @@ class ShapeFamily:
 
 
 def _lathe(profile_r_y: Sequence[tuple[float, float]], sections: int = _SECTIONS) -> trimesh.Trimesh:
-    """A solid of revolution about +y from a (radius, height) polyline [m] that starts and ends on the axis."""
+    """Solid of revolution about +y of a (radius, height) polyline [m] that starts and ends on the axis."""
     line = np.asarray(profile_r_y, dtype=np.float64)
     solid = trimesh.creation.revolve(line, sections=sections)  # trimesh revolves about its z axis
     z_to_y = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0], [0, -1.0, 0, 0], [0, 0, 0, 1.0]])
@@ -73,7 +73,9 @@ def _cuboid(extents: Sequence[float], centre: Sequence[float]) -> trimesh.Trimes
 
 
 def _join(parts: Sequence[trimesh.Trimesh]) -> trimesh.Trimesh:
-    return trimesh.util.concatenate(list(parts))
+    joined = trimesh.util.concatenate(list(parts))
+    assert isinstance(joined, trimesh.Trimesh)  # concatenating triangle meshes gives a triangle mesh
+    return joined
 
 
 def _bent_tube(centreline: np.ndarray, radius: float, sides: int = 20) -> trimesh.Trimesh:
@@ -141,7 +143,9 @@ def _bottle() -> trimesh.Trimesh:
     neck_r, shoulder_top = 0.4 * r, 0.82 * h
     for s in np.linspace(0.1, 0.9, 9):  # shoulder: a quarter ellipse from the body to the neck
         ang = s * math.pi / 2.0
-        profile.append((neck_r + (r - neck_r) * math.cos(ang), 0.58 * h + (shoulder_top - 0.58 * h) * math.sin(ang)))
+        profile.append(
+            (neck_r + (r - neck_r) * math.cos(ang), 0.58 * h + (shoulder_top - 0.58 * h) * math.sin(ang))
+        )
     cap_r = 0.46 * r
     profile += [
         (neck_r, shoulder_top),
@@ -319,14 +323,22 @@ def _book() -> trimesh.Trimesh:
 _FAMILY_LIST = (
     ShapeFamily(
         "box",
-        ("box", "product box", "cereal box", "cracker box", "tea box", "pasta box", "small cardboard box"),
+        ("box", "product box", "cereal box", "cracker box", "tea box", "pasta box"),
         "box",
         "standing product box, width x, height y, depth z",
         _box,
     ),
     ShapeFamily(
         "carton",
-        ("carton", "cardboard carton", "cardboard box", "shipping box", "moving box", "corrugated box", "package"),
+        (
+            "carton",
+            "cardboard carton",
+            "cardboard box",
+            "shipping box",
+            "moving box",
+            "corrugated box",
+            "package",
+        ),
         "box",
         "shipping carton, width x, height y, depth z",
         _carton,
@@ -340,7 +352,15 @@ _FAMILY_LIST = (
     ),
     ShapeFamily(
         "bottle",
-        ("bottle", "water bottle", "plastic bottle", "glass bottle", "wine bottle", "sauce bottle", "detergent bottle"),
+        (
+            "bottle",
+            "water bottle",
+            "plastic bottle",
+            "glass bottle",
+            "wine bottle",
+            "sauce bottle",
+            "detergent bottle",
+        ),
         "y_continuous",
         "NOCS: axis along +y, cap up",
         _bottle,
@@ -368,7 +388,7 @@ _FAMILY_LIST = (
     ),
     ShapeFamily(
         "laptop",
-        ("laptop", "laptop computer", "notebook computer", "open laptop", "macbook", "portable computer"),
+        ("laptop", "laptop computer", "notebook computer", "open laptop", "portable computer"),
         "none",
         "NOCS: base normal +y, hinge line along x, keyboard towards +z, screen at -z",
         _laptop,
@@ -382,14 +402,22 @@ _FAMILY_LIST = (
     ),
     ShapeFamily(
         "ball",
-        ("ball", "tennis ball", "football", "soccer ball", "basketball", "rubber ball", "sphere"),
+        ("ball", "tennis ball", "football", "soccer ball", "basketball", "sphere"),
         "spherical",
         "sphere",
         _ball,
     ),
     ShapeFamily(
         "tube",
-        ("tube", "cardboard tube", "mailing tube", "poster tube", "pipe", "paper roll core", "cylinder lying down"),
+        (
+            "tube",
+            "cardboard tube",
+            "mailing tube",
+            "poster tube",
+            "pipe",
+            "paper roll core",
+            "cardboard roll",
+        ),
         "x_continuous",
         "hollow tube lying down, axis along x",
         _tube,
@@ -403,7 +431,16 @@ _FAMILY_LIST = (
     ),
     ShapeFamily(
         "sack",
-        ("sack", "bag of flour", "flour sack", "grain sack", "cement bag", "sandbag", "feed sack", "big bag of rice"),
+        (
+            "sack",
+            "bag of flour",
+            "flour sack",
+            "grain sack",
+            "cement bag",
+            "sandbag",
+            "feed sack",
+            "big bag of rice",
+        ),
         "box",
         "filled sack lying flat, length along x",
         _sack,

@@ -35,39 +35,63 @@ __all__ = [
     "DEFAULT_MATCH_THRESHOLD",
     "PriorLibrary",
     "core_phrase",
+    "head_noun",
     "superquadric_prior",
 ]
 
 log = logging.getLogger(__name__)
 
-#: A family is used when its best cosine similarity with the prompt (MiniLM) reaches this value; below it
-#: the prompt counts as unknown and a superquadric is fitted. Measured on 40 in-library prompts (lowest
-#: best-family score 0.64, "a wooden EUR pallet") and 20 out-of-library prompts (highest 0.52, "pencil
-#: case" -> box); 0.58 sits in the gap (docs/priors.md has the table and the command).
+#: A family is used when its score (`PriorLibrary.match`) reaches this value; below it the prompt counts as
+#: unknown and a superquadric is fitted to the observation. Measured with MiniLM
+#: (`python -m prompose_grasp.perception.priors.bench`): 30 everyday objects that no family resembles score
+#: at most 0.557 ("spoon" -> plate); 50 of 52 in-library prompts score at least 0.587 ("cookbook" -> book),
+#: the other two ("chromebook" 0.519, "thermos flask" 0.411) fall back to a superquadric. 0.58 sits in the
+#: gap, nearer its top: retrieving a wrong family (a plate for a spoon) costs more than fitting a
+#: superquadric to a known object. docs/priors.md has the full table.
 DEFAULT_MATCH_THRESHOLD = 0.58
 
-#: Words that describe an object's look, size or material, or are articles: they do not change its shape
-#: family, but they do pull the sentence embedding around, so the prompt is also scored without them.
+#: Words that describe an object's look, size, material or place, articles, and command verbs: they do not
+#: change its shape family but pull the sentence embedding around, so they are dropped before matching.
 _MODIFIERS = frozenset(
     """
-    a an the this that these those my your its some one two three of
+    a an the this that these those my your its some one two three please
     red green blue yellow orange purple violet pink brown black white grey gray silver golden gold beige
     cyan magenta turquoise navy maroon dark light bright pale transparent clear colorful colourful striped
     dotted shiny matte metallic
     small smaller smallest big bigger biggest large larger largest tiny huge little medium tall short long
     wide narrow thin thick heavy empty full new old dirty clean
     left right front back leftmost rightmost nearest closest farthest middle top bottom
+    pick up put place grab take move bring lift get fetch hand give
     """.split()
+)
+
+#: A noun phrase's head noun is the last word before the first of these ("sack of flour" -> "sack",
+#: "mug with a handle" -> "mug", "mustard bottle in the bin" -> "bottle").
+_PREPOSITIONS = frozenset(
+    "of with without for in into on onto from at to by near next behind under over above below beside "
+    "between containing filled".split()
 )
 
 
 def core_phrase(prompt: str) -> str:
-    """The prompt without look, size, position and article words ("the small red mug" -> "mug").
+    """The prompt without look, size, position, article and command words ("the small red mug" -> "mug").
 
-    Returns "" when nothing else is left ("the big red one" -> "one" is removed too -> "").
+    Returns "" when nothing else is left ("the big red one").
     """
     words = re.findall(r"[A-Za-z0-9][A-Za-z0-9'\-]*", prompt)
     return " ".join(w for w in words if w.lower() not in _MODIFIERS)
+
+
+def head_noun(phrase: str) -> str:
+    """The head noun of an English noun phrase: the last word before the first preposition.
+
+    "tomato soup can" -> "can"; "sack of potatoes" -> "sack"; "" for an empty phrase.
+    """
+    words = phrase.split()
+    for i, w in enumerate(words):
+        if w.lower() in _PREPOSITIONS and i > 0:
+            return words[i - 1]
+    return words[-1] if words else ""
 
 
 def superquadric_prior(
@@ -165,27 +189,31 @@ class PriorLibrary:
             return self._desc_texts, self._desc_family, self._desc_emb
 
     def _scores(self, prompt: str) -> list[tuple[str, float, str]]:
-        """(family, score, best description) for every family, best first."""
+        """(family, score, best description of the phrase) for every family, best first."""
         if not isinstance(prompt, str) or not prompt.strip():
             raise InvalidInputError(f"prompt must be a non-blank str, got {prompt!r}")
         texts, owner, emb = self._description_embeddings()
-        variants = [prompt.strip()]
-        core = core_phrase(prompt)
-        if core and core.lower() != variants[0].lower():
-            variants.append(core)
+        phrase = core_phrase(prompt) or prompt.strip()
+        head = head_noun(phrase)
+        variants = [phrase] if head.lower() == phrase.lower() else [phrase, head]
         q = np.asarray(self.encoder.encode(variants), dtype=np.float64)
-        sims = (q @ emb.T).max(axis=0)  # rows are unit vectors: dot = cosine
+        sims = q @ emb.T  # (variants, descriptions); rows are unit vectors: dot = cosine
         out = []
         for i, name in enumerate(self._families):
             idx = np.flatnonzero(owner == i)
-            j = idx[int(np.argmax(sims[idx]))]
-            out.append((name, float(sims[j]), texts[j]))
+            best_per_variant = sims[:, idx].max(axis=1)
+            j = idx[int(np.argmax(sims[0, idx]))]
+            out.append((name, float(best_per_variant.mean()), texts[j]))
         out.sort(key=lambda r: -r[1])
         return out
 
     def match(self, prompt: str) -> list[tuple[str, float]]:
-        """(family, cosine score) for every family, best first. The score is the best over the family's
-        descriptions and over the prompt with and without its look/size/article words."""
+        """(family, score) for every family, best first.
+
+        The score is the mean of two cosine similarities, each the best over the family's descriptions: one
+        of the prompt's core phrase (`core_phrase`), one of its head noun (`head_noun`); they are the same
+        when the core phrase is one word.
+        """
         return [(name, score) for name, score, _ in self._scores(prompt)]
 
     def mesh(self, family: str) -> trimesh.Trimesh:

@@ -139,7 +139,7 @@ def _check_exponents(e1: float, e2: float, strict: bool = True) -> None:
 
 
 def _object_frame(points: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation R_frame_obj: columns x (main horizontal direction of the points), y = up, z = x cross y."""
+    """(3, 3) R_frame_obj: columns x (main horizontal direction of the points), y = up, z = x cross y."""
     y = up / np.linalg.norm(up)
     centred = points - points.mean(axis=0)
     horizontal = centred - np.outer(centred @ y, y)
