@@ -49,3 +49,7 @@ class CameraError(PromposeError):
 
 class DeviceNotConnectedError(PromposeError, RuntimeError):
     """A device (arm, gripper, camera) was used before `connect()` or after `disconnect()`."""
+
+
+class ObjectNotFoundError(PromposeError):
+    """No object in the frame matches the prompt (grounding found no candidate)."""

@@ -1,0 +1,235 @@
+"""`ProMPose`: RGB-D frames + a text prompt -> the metric 9-DoF box and the scaled prior mesh of the object.
+
+The structure follows the paper's Algorithm 1 (shared/paper/ProM-Pose.txt, section 3):
+
+1. ground the prompt in the frame (text -> mask)                         `perception.grounding`
+2. generate the canonical shape prior once per sequence (text + frame)   `perception.priors`
+3. back-project the masked depth and estimate R, t and the anisotropic
+   size by minimising the paper's L_geo against the prior              `perception.fit`
+4. refine over a sliding window of frames                               `perception.tracker`
+
+Every component here is the embedded default that works offline on a CPU; the learned ProM-Pose network slots
+in as another pose head (issue 8).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from prompose_grasp.errors import InvalidInputError, ObjectNotFoundError
+from prompose_grasp.geometry import Pose9D
+from prompose_grasp.geometry.pointcloud import back_project, valid_depth_mask
+from prompose_grasp.perception.fit import FitConfig, fit_pose
+from prompose_grasp.perception.grounding import Candidate, Grounder, GroundingResult
+from prompose_grasp.perception.priors import PriorLibrary, ShapePrior
+from prompose_grasp.robot.interfaces import RGBDFrame
+
+__all__ = ["Estimate", "EstimatorConfig", "ProMPose"]
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Settings of the estimator facade.
+
+    Attributes:
+        max_objects: how many grounding candidates `estimate_all` turns into estimates (best first).
+        min_points: a candidate with fewer valid depth points than this is skipped: below ~50 points a
+            9-DoF fit is underdetermined against sensor noise.
+    """
+
+    max_objects: int = 3
+    min_points: int = 50
+
+    def __post_init__(self) -> None:
+        if self.max_objects < 1 or self.min_points < 4:
+            raise InvalidInputError("EstimatorConfig needs max_objects >= 1 and min_points >= 4")
+
+
+@dataclass(frozen=True, eq=False)
+class Estimate:
+    """One object's estimate in one frame.
+
+    Attributes:
+        pose: the metric 9-DoF box in the camera frame.
+        mask: (H, W) bool pixels of the object used for the fit.
+        box_xyxy: (4,) int 2D box of the mask (x0, y0, x1, y1), inclusive pixel bounds.
+        score: grounding score of the object against the prompt (higher is better; comparable within a frame).
+        prior: the canonical shape prior (unit box) and where it came from.
+        fit_loss: the L_geo value at the solution [m^2].
+        timings_ms: per-stage wall time {"grounding", "prior", "pose", "total"} [ms].
+        frame_index: position in the sequence (0 for single frames).
+    """
+
+    pose: Pose9D
+    mask: np.ndarray
+    box_xyxy: np.ndarray
+    score: float
+    prior: ShapePrior
+    fit_loss: float
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    frame_index: int = 0
+
+    @cached_property
+    def mesh_cam(self) -> trimesh.Trimesh:
+        """The prior mesh scaled to `pose.size` and posed in the camera frame [m] (a new mesh)."""
+        mesh = self.prior.mesh.copy()
+        mesh.vertices = self.pose.points_to_camera(mesh.vertices)
+        return mesh
+
+    def to_dict(self) -> dict[str, Any]:
+        """The object fields of the `prompose-grasp estimate` JSON contract (DESIGN.md)."""
+        return {
+            **self.pose.to_dict(),
+            "score": float(self.score),
+            "mask_pixels": int(np.count_nonzero(self.mask)),
+            "prior": self.prior.name,
+        }
+
+
+def _check_prompt(prompt: str) -> str:
+    if not isinstance(prompt, str) or not prompt.strip():
+        raise InvalidInputError(f"prompt must be a non-empty string naming the object, got {prompt!r}")
+    return prompt.strip()
+
+
+def _check_frame(frame: RGBDFrame) -> RGBDFrame:
+    if not isinstance(frame, RGBDFrame):
+        raise InvalidInputError(
+            f"expected a prompose_grasp.robot.RGBDFrame (rgb, depth_m, intrinsics, timestamp_s), "
+            f"got {type(frame).__name__}"
+        )
+    if not valid_depth_mask(frame.depth_m).any():
+        raise InvalidInputError("the depth image has no valid reading (all zero, NaN or below 1 mm)")
+    return frame
+
+
+def _ms(t0: float) -> float:
+    return 1e3 * (time.perf_counter() - t0)
+
+
+class ProMPose:
+    """The estimator: ground, prior, fit, track. Build it with `ProMPose.default()`.
+
+    >>> estimator = ProMPose.default()  # doctest: +SKIP
+    >>> est = estimator.estimate(frame, "the yellow carton")  # doctest: +SKIP
+    >>> est.pose.size, est.mesh_cam  # doctest: +SKIP
+
+    The pose head is the test-time L_geo fit of the canonical prior (`perception.fit`); the learned network
+    of issue 8 will be offered as another head once it beats the fit on the benchmark.
+    """
+
+    def __init__(
+        self,
+        grounder: Grounder,
+        priors: PriorLibrary,
+        fit_config: FitConfig | None = None,
+        config: EstimatorConfig | None = None,
+    ):
+        self.grounder = grounder
+        self.priors = priors
+        self.fit_config = fit_config or FitConfig()
+        self.config = config or EstimatorConfig()
+
+    @classmethod
+    def default(cls, device: str = "cpu") -> ProMPose:
+        """The embedded offline defaults: geometric grounding scored with MiniLM, the parametric prior
+        library, and the visibility-aware L_geo fit. Loads nothing from the network."""
+        from prompose_grasp.perception.text import default_text_encoder
+
+        encoder = default_text_encoder(device)
+        return cls(Grounder(text_encoder=encoder), PriorLibrary(encoder=encoder))
+
+    # ------------------------------------------------------------------------------------------------------
+
+    def estimate(self, frame: RGBDFrame, prompt: str, prior: ShapePrior | None = None) -> Estimate:
+        """The best-matching object's estimate in one frame.
+
+        Args:
+            frame: colour, depth [m] and intrinsics.
+            prompt: the object phrase ("the mug left of the bowl").
+            prior: a canonical prior to use instead of generating one (e.g. from a CAD mesh).
+        Raises:
+            InvalidInputError: bad frame or prompt.
+            ObjectNotFoundError: nothing in the frame could be the object.
+        """
+        estimates = self.estimate_all(frame, prompt, prior=prior, max_objects=1)
+        if not estimates:
+            raise ObjectNotFoundError(f"no object in the frame matches {prompt!r}")
+        return estimates[0]
+
+    def estimate_all(
+        self, frame: RGBDFrame, prompt: str, prior: ShapePrior | None = None, max_objects: int | None = None
+    ) -> list[Estimate]:
+        """Estimates of the best `max_objects` candidates, best first; an empty list when nothing matches."""
+        t_total = time.perf_counter()
+        prompt = _check_prompt(prompt)
+        frame = _check_frame(frame)
+        t0 = time.perf_counter()
+        grounding = self.grounder.ground(frame.rgb, frame.depth_m, frame.intrinsics, prompt)
+        grounding_ms = _ms(t0)
+        estimates: list[Estimate] = []
+        for candidate in grounding.candidates[: max_objects or self.config.max_objects]:
+            points = back_project(frame.depth_m, frame.intrinsics, mask=candidate.mask)
+            if len(points) < self.config.min_points:
+                continue
+            t0 = time.perf_counter()
+            prior = prior or self._generate_prior(prompt, points, grounding)
+            prior_ms = _ms(t0)
+            estimates.append(
+                self._fit(candidate, points, prior, grounding, {"grounding": grounding_ms, "prior": prior_ms})
+            )
+        for est in estimates:
+            est.timings_ms["total"] = _ms(t_total)
+        return estimates
+
+    def track(
+        self, frames: Iterable[RGBDFrame], prompt: str, prior: ShapePrior | None = None
+    ) -> Iterator[Estimate]:
+        """Estimates frame after frame, refined over a sliding window (see `perception.tracker`)."""
+        from prompose_grasp.perception.tracker import Tracker
+
+        tracker = Tracker(self, _check_prompt(prompt), prior=prior)
+        for frame in frames:
+            yield tracker.update(_check_frame(frame))
+
+    # ------------------------------------------------------------------------------------------------------
+
+    def _generate_prior(self, prompt: str, points: np.ndarray, grounding: GroundingResult) -> ShapePrior:
+        up = None if grounding.support_plane is None else grounding.support_plane.normal_cam
+        return self.priors.generate(prompt, observation_points=points, up=up)
+
+    def _fit(
+        self,
+        candidate: Candidate,
+        points: np.ndarray,
+        prior: ShapePrior,
+        grounding: GroundingResult,
+        timings_ms: dict[str, float],
+        init: Pose9D | None = None,
+        frame_index: int = 0,
+    ) -> Estimate:
+        t0 = time.perf_counter()
+        up = None if grounding.support_plane is None else grounding.support_plane.normal_cam
+        fit = fit_pose(points, prior, self.fit_config, up_cam=up, init=init)
+        timings_ms["pose"] = _ms(t0)
+        return Estimate(
+            pose=fit.pose,
+            mask=candidate.mask,
+            box_xyxy=np.asarray(candidate.box_xyxy),
+            score=float(candidate.score),
+            prior=prior,
+            fit_loss=float(fit.loss) if math.isfinite(fit.loss) else math.inf,
+            timings_ms=timings_ms,
+            frame_index=frame_index,
+        )
