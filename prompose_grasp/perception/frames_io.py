@@ -1,0 +1,88 @@
+"""Reading RGB-D frames from image files: one pair, or a recorded `NNNNNN-color.png` / `-depth.png` folder."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from prompose_grasp.errors import InvalidInputError
+from prompose_grasp.geometry.camera import CameraIntrinsics
+from prompose_grasp.robot.interfaces import RGBDFrame
+
+__all__ = ["list_sequence", "load_rgbd"]
+
+_FRAME_RE = re.compile(r"^(\d+)-color\.(png|jpg|jpeg)$")
+
+
+def load_rgbd(
+    rgb_path: str | Path,
+    depth_path: str | Path,
+    depth_scale_m: float,
+    fx_fy_cx_cy: tuple[float, float, float, float],
+    timestamp_s: float = 0.0,
+) -> RGBDFrame:
+    """Read a colour image and a registered uint16 depth PNG into an `RGBDFrame`.
+
+    Args:
+        rgb_path: 8-bit colour image (PNG/JPEG).
+        depth_path: single-channel uint16 PNG; depth [m] = value * depth_scale_m, 0 = no reading.
+        depth_scale_m: metres per depth unit (0.001 for millimetre PNGs).
+        fx_fy_cx_cy: pinhole intrinsics [px] of both images.
+    Raises:
+        InvalidInputError: a file is missing or unreadable, the images disagree in size, the depth is not a
+            single-channel 16-bit image, or the intrinsics are not a camera.
+    """
+    scale = float(depth_scale_m)
+    if not np.isfinite(scale) or scale <= 0:
+        raise InvalidInputError(f"depth scale must be > 0 metres per unit, got {depth_scale_m}")
+    bgr = _read(rgb_path, cv2.IMREAD_COLOR)
+    depth_raw = _read(depth_path, cv2.IMREAD_UNCHANGED)
+    if depth_raw.ndim != 2 or depth_raw.dtype != np.uint16:
+        raise InvalidInputError(
+            f"{depth_path}: depth must be a single-channel 16-bit PNG, got shape {depth_raw.shape} "
+            f"{depth_raw.dtype}"
+        )
+    if depth_raw.shape != bgr.shape[:2]:
+        raise InvalidInputError(
+            f"colour image {bgr.shape[:2]} and depth image {depth_raw.shape} (rows, cols) differ; "
+            "the depth must be registered to the colour image"
+        )
+    fx, fy, cx, cy = (float(v) for v in fx_fy_cx_cy)
+    intrinsics = CameraIntrinsics(fx, fy, cx, cy, width=bgr.shape[1], height=bgr.shape[0])
+    return RGBDFrame(
+        rgb=np.ascontiguousarray(bgr[..., ::-1]),
+        depth_m=(depth_raw.astype(np.float32) * np.float32(scale)),
+        intrinsics=intrinsics,
+        timestamp_s=float(timestamp_s),
+    )
+
+
+def list_sequence(folder: str | Path) -> list[tuple[int, Path, Path]]:
+    """(index, colour path, depth path) of every `NNNNNN-color.png` with its `NNNNNN-depth.png`, in order."""
+    root = Path(folder)
+    if not root.is_dir():
+        raise InvalidInputError(f"{root} is not a folder of NNNNNN-color.png / NNNNNN-depth.png frames")
+    frames = []
+    for path in sorted(root.iterdir()):
+        m = _FRAME_RE.match(path.name)
+        if m:
+            depth = root / f"{m.group(1)}-depth.png"
+            if not depth.is_file():
+                raise InvalidInputError(f"{path.name} has no matching {depth.name} in {root}")
+            frames.append((int(m.group(1)), path, depth))
+    if not frames:
+        raise InvalidInputError(f"no NNNNNN-color.png frames in {root}")
+    return frames
+
+
+def _read(path: str | Path, flags: int) -> np.ndarray:
+    p = Path(path)
+    if not p.is_file():
+        raise InvalidInputError(f"{p}: no such file")
+    img = cv2.imread(str(p), flags)
+    if img is None:
+        raise InvalidInputError(f"{p}: not a readable image")
+    return img
