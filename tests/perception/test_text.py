@@ -46,7 +46,7 @@ def test_minilm_embeddings_are_unit_float32_and_deterministic(minilm):
 def test_minilm_semantics_mug_is_near_a_handled_cup(minilm):
     e = minilm.encode(["mug", "coffee cup with a handle", "wooden pallet"])
     s = similarity(e[0], e[1:])[0]
-    assert s[0] > s[1] + 0.2  # a wide semantic margin, not a coin flip (measured 0.63 vs 0.16)
+    assert s[0] > s[1] + 0.2  # a wide semantic margin, not a coin flip (measured 0.61 vs 0.31)
 
 
 def test_minilm_token_features(minilm):
