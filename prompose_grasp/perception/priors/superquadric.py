@@ -224,7 +224,7 @@ def superquadric_mesh(size_m: ArrayLike, e1: float, e2: float, resolution: int =
     Args:
         size_m: (3,) full extents [m].
         e1, e2: exponents within `EXPONENT_BOUNDS`.
-        resolution: vertices per quarter turn of longitude times 4 / 2 per latitude (>= 8).
+        resolution: latitude steps from pole to pole (>= 8); longitude gets twice as many.
     """
     half = _as_size(size_m) / 2.0
     _check_exponents(e1, e2)
