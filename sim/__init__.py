@@ -27,8 +27,8 @@ from sim.camera import CameraSpec, SimCamera, look_at, mujoco_intrinsics
 from sim.grippers import ParallelJawGripper, SuctionGripper
 from sim.noise import NOISE_PRESETS, DepthNoiseConfig, apply_depth_noise, noise_preset
 from sim.objects import FAMILIES, ObjectAsset, load_mesh_object, make_object
-from sim.scene_file import build_scene, load_scene, load_world
 from sim.robot_scene import add_robot
+from sim.scene_file import build_scene, load_scene, load_world
 from sim.world import Appearance, SceneBuilder, SimWorld, Support, upright_pose
 
 __all__ = [

@@ -213,9 +213,7 @@ class SimArm(Arm):
         t = self._step_times(duration)
         s, sd, sdd, _ = trapezoid_profile(dist, command.speed_rad_s, command.accel_rad_s2, t)
         unit = delta / dist if dist > 0 else np.zeros(6)
-        self._execute(
-            q0 + np.outer(s, unit), np.outer(sd, unit), np.outer(sdd, unit), command.q
-        )
+        self._execute(q0 + np.outer(s, unit), np.outer(sd, unit), np.outer(sdd, unit), command.q)
         return command
 
     def move_linear(self, T_base_tcp: ArrayLike, speed: float, accel: float) -> LinearCommand:
@@ -301,7 +299,7 @@ class SimArm(Arm):
             steps += 1
         d.ctrl[info.actuator_ids] = q_final
         d.qfrc_applied[info.dof_adr] = 0.0
-        max_steps = int(round(self.max_settle_s / self._dt))
+        max_steps = round(self.max_settle_s / self._dt)
         for _ in range(max_steps):
             if np.max(np.abs(d.qvel[info.dof_adr])) < self.settle_speed_rad_s:
                 break

@@ -127,7 +127,9 @@ class SimCamera(RGBDCamera):
             raise UnknownNameError("camera", name, sorted(world.cameras))
         spec = world.cameras[name]
         if spec.noise != DepthNoiseConfig(name=spec.noise.name) and rng is None:
-            raise InvalidInputError(f"camera {name!r} uses noise model {spec.noise.name!r}: pass a seeded rng")
+            raise InvalidInputError(
+                f"camera {name!r} uses noise model {spec.noise.name!r}: pass a seeded rng"
+            )
         self.world = world
         self.name = name
         self.rng = rng

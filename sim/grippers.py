@@ -16,15 +16,20 @@ Reliable grasps in MuJoCo (facts from MuJoCo's documentation and users): ellipti
 `impratio` >= 10 (set by `SceneBuilder`), box-primitive pads with `condim` 6 (sliding, torsional and rolling
 friction; small torsional coefficient), pad contacts with priority over the object's so the pad's friction and
 stiffer `solref` apply, a few `noslip` iterations (set by `add_robot`) to remove the creep of soft contacts,
-and fingers on slide joints driven by actuators (never children of a mocap body, which makes contacts
-frictionless in effect because the mocap body is infinitely stiff and teleports).
+and fingers on slide joints driven by actuators (never children of a mocap body, which MuJoCo users report
+zeroes the grip friction). The two finger joints are coupled by an equality (q_left = q_right, like the
+2F-85 linkage), so a held object cannot slide sideways with both fingers under lateral acceleration.
 
 The fingers are position servos with a force limit, driven like a Robotiq gripper (position, speed, force):
 `close(force)` moves the finger targets inwards at `close_speed_m_s` and then past the closed position, so
-each finger pushes an object with exactly the force limit `force`; `open()` moves them out to the full stroke. The suction cup holds an
-object with an equality weld, switched on by `close()` only when the cup face touches a face of the object
-(contact normal within `max_face_angle_deg` of the cup axis), and switched off when the load on it (tension
-and shear) exceeds `max_force_n`, or by `open()`.
+each finger pushes an object with exactly the force limit `force`; `open()` moves them out to the full
+stroke. (A pure force mode with a speed-limiting damper of ~600 N s/m made the pads chatter under the
+implicit integrator and let a held box creep down ~1 mm/s; moderate servo damping does not.)
+
+The suction cup holds an object with an equality weld, switched on by `close()` only when the cup face is
+in contact with a face of the object (contact normal within `max_face_angle_deg` of the cup axis), and
+switched off when the pull on it exceeds the holding force (at most `max_force_n`), when the shear exceeds
+the lip friction, or by `open()`.
 """
 
 from __future__ import annotations
@@ -116,6 +121,8 @@ class SuctionCupGeometry:
         mass_kg: mass of stem and cup.
         max_force_n: largest load the vacuum holds (about 60 kPa over a 50 mm cup: 118 N).
         max_face_angle_deg: the cup seals only on a face whose normal is within this angle of the cup axis.
+        lip_friction: friction coefficient of the lip; the cup holds a shear load up to lip_friction x
+            (holding force - pull).
     """
 
     cup_radius_m: float = 0.025
@@ -125,6 +132,7 @@ class SuctionCupGeometry:
     mass_kg: float = 0.35
     max_force_n: float = 118.0
     max_face_angle_deg: float = 15.0
+    lip_friction: float = 0.8
 
     @property
     def tcp_z_m(self) -> float:
@@ -292,7 +300,7 @@ class _SimGripperBase(Gripper):
         if robot is None or robot.gripper != self.kind:
             have = None if robot is None else robot.gripper
             raise InvalidInputError(
-                f"{type(self).__name__} needs a world built with a {self.kind!r} gripper; this one has {have!r}"
+                f"{type(self).__name__} needs a world built with a {self.kind!r} gripper; it has {have!r}"
             )
         self.world = world
         self._connected = False
@@ -375,7 +383,9 @@ class ParallelJawGripper(_SimGripperBase):
         self._require()
         g = self.geometry
         if not (math.isfinite(force) and g.min_force_n <= force <= g.max_force_n):
-            raise InvalidInputError(f"grip force must be within [{g.min_force_n}, {g.max_force_n}] N, got {force!r}")
+            raise InvalidInputError(
+                f"grip force must be within [{g.min_force_n}, {g.max_force_n}] N, got {force!r}"
+            )
         # Past the closed position by more than force / kp: a finger stopped anywhere by an object pushes
         # with the saturated servo force, i.e. exactly `force`.
         self._drive(0.0, -(float(force) / _FINGER_KP + 0.005), float(force))
@@ -416,8 +426,9 @@ class SuctionGripper(_SimGripperBase):
     `close(force)` switches the vacuum on: when the cup face is in contact with a face of a free object
     (contact normal within `max_face_angle_deg` of the cup axis) the weld to that object is activated;
     otherwise nothing is held. `force` [N] is the holding force asked for, capped by the cup's `max_force_n`.
-    While holding, every physics step checks the weld's load (tension along the cup axis and shear; pressing
-    does not count) and releases the object when it exceeds the holding force. Moments are not limited.
+    While holding, every physics step checks the weld's load and releases the object when the pull along the
+    cup axis exceeds the holding force, or the shear exceeds `lip_friction` x (holding force - pull).
+    Moments are not limited.
     """
 
     kind = "suction"
@@ -507,15 +518,18 @@ class SuctionGripper(_SimGripperBase):
         rows = np.flatnonzero((d.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY) & (d.efc_id == eq))
         if rows.size < 6:
             return
-        # The translational rows are world-frame forces, minus the force on the object. A vacuum fails in
-        # tension and shear; pushing the object (the cup pressed onto it) is compression and does not count.
+        # The translational rows are world-frame forces (minus the force on the object). A vacuum cup lets go
+        # when the pull along its axis exceeds the holding force, or when the shear exceeds the lip's friction
+        # under the net pressing force (holding force minus pull; pressing the cup on adds to it).
         f_rows = d.efc_force[rows[:3]]
         axis = d.xmat[self._cup_body].reshape(3, 3)[:, 2]
         tension = float(f_rows @ axis)
-        shear = float(np.linalg.norm(f_rows - (f_rows @ axis) * axis))
-        load = math.hypot(max(tension, 0.0), shear)
-        if load > self._limit_n:
-            log.info("suction: load %.1f N exceeds the holding force %.1f N; the object drops", load, self._limit_n)
+        shear = float(np.linalg.norm(f_rows - tension * axis))
+        if tension > self._limit_n or shear > self.geometry.lip_friction * (self._limit_n - tension):
+            log.info(
+                "suction: pull %.1f N / shear %.1f N exceed the holding force %.1f N; the object drops",
+                tension, shear, self._limit_n,
+            )  # fmt: skip
             self._release("overload")
 
     def held_body(self) -> int | None:
@@ -530,4 +544,3 @@ class SuctionGripper(_SimGripperBase):
         """Always 0 (a suction cup has no opening)."""
         self._require()
         return 0.0
-

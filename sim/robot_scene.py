@@ -95,7 +95,7 @@ class RobotInfo:
         return invert_T(self.T_world_base)
 
     def apply_home(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
-        """Arm at `home_q` with zero speed and servo targets there; gripper open with its default force limit."""
+        """Arm at `home_q`, at rest, servo targets there; gripper open with its default force limit."""
         data.qpos[self.qpos_adr] = self.home_q
         data.qvel[self.dof_adr] = 0.0
         data.ctrl[self.actuator_ids] = self.home_q
@@ -214,9 +214,7 @@ def add_robot(
     if np.any(q_home < lower) or np.any(q_home > upper):
         raise InvalidInputError(f"home_q {q_home.tolist()} is outside the joint limits of {name}")
 
-    root = add_arm_to_spec(
-        spec, model.urdf, T_parent_base=T_base, T_flange_tcp=T_flange_tcp, actuator_kp=1.0
-    )
+    root = add_arm_to_spec(spec, model.urdf, T_parent_base=T_base, T_flange_tcp=T_flange_tcp, actuator_kp=1.0)
     effort = np.array(model.spec.max_joint_torque_nm, dtype=np.float64)
     kp, kv = ARM_KP_PER_NM * effort, ARM_KV_PER_NM * effort
     for j, jname in enumerate(JOINT_NAMES):
@@ -267,10 +265,9 @@ def add_robot(
 
 
 def base_pose_facing(target_xy_m: ArrayLike, base_xyz_m: ArrayLike) -> np.ndarray:
-    """T_world_base (4, 4) at `base_xyz_m` yawed so that the home pose (TCP along base -x) faces the target."""
+    """T_world_base (4, 4) at `base_xyz_m` yawed so that base -x (the home reach) faces `target_xy_m`."""
     p = np.asarray(base_xyz_m, dtype=np.float64)
     d = np.asarray(target_xy_m, dtype=np.float64) - p[:2]
     yaw = np.arctan2(d[1], d[0]) + np.pi  # base -x towards the target
     c, s = np.cos(yaw), np.sin(yaw)
     return make_T(np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), p)
-

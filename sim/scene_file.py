@@ -221,11 +221,11 @@ def parse_scene(doc: Mapping[str, Any], base_dir: str | Path = ".") -> SceneSpec
             _vec(robot["home_q_rad"], 6, "robot.home_q_rad")
     gripper = doc.get("gripper")
     if gripper is not None:
-        if robot is None:
-            raise InvalidInputError("a gripper needs a robot: add `robot: {model: ...}` to the scene")
         _check_keys(gripper, ("type",), "gripper")
         if gripper.get("type") not in GRIPPER_TYPES:
             raise UnknownNameError("gripper", gripper.get("type"), GRIPPER_TYPES)
+        if robot is None:
+            raise InvalidInputError("a gripper needs a robot: add `robot: {model: ...}` to the scene")
 
     supports = list(doc.get("supports", []) or [])
     if "support" in doc:

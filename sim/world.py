@@ -943,6 +943,9 @@ class SimWorld:
     def render_clean(self, camera: str) -> tuple[np.ndarray, np.ndarray]:
         """Noise-free colour (H, W, 3) uint8 and depth (H, W) float32 [m] (0 = nothing within range)."""
         spec = self._camera(camera)
+        # Poses of the current qpos (mj_step leaves them one step behind): image and T_world_cam agree.
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_camlight(self.model, self.data)
         r = self._renderer(spec.width, spec.height)
         r.update_scene(self.data, camera=camera)
         color = r.render().copy()

@@ -1,0 +1,183 @@
+"""Grippers: the parallel jaw lifts a 0.5 kg box and carries it at 1 m/s; the suction cup lifts a carton."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+import trimesh
+
+from prompose_grasp.errors import InvalidInputError
+from prompose_grasp.geometry.se3 import invert_T, make_T
+from prompose_grasp.robot import CommandValidator, ValidatorConfig
+from sim.arm import SimArm
+from sim.grippers import ParallelJawGripper, SuctionGripper
+from sim.objects import make_object
+from sim.robot_scene import add_robot
+from sim.world import SceneBuilder, upright_pose
+
+pytestmark = pytest.mark.sim
+
+T_WORLD_BASE = make_T(np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]), [0.0, -0.55, 0.75])
+R_DOWN = np.diag([1.0, -1.0, -1.0])  # tcp z pointing down in base (base z up)
+
+
+def _z(dz_m: float) -> np.ndarray:
+    return np.array([0.0, 0.0, dz_m])
+
+
+def _world_with(gripper: str, family: str, params: dict, mass_kg: float, robot="ur5e"):
+    b = SceneBuilder("grip")
+    b.add_floor()
+    table = b.add_table()
+    add_robot(b, robot, T_WORLD_BASE, gripper=gripper)
+    asset = make_object(family, params=params)
+    volume = sum(trimesh.Trimesh(h.vertices, h.faces).volume for h in asset.collision)
+    # 0.45 m in front of the base (base -x), on the table
+    b.add_object(asset, "obj", upright_pose(asset, table, (0.0, -0.1)), density_kg_m3=mass_kg / volume)
+    world = b.build()
+    world.settle()
+    return world
+
+
+def _fast_arm(world) -> SimArm:
+    """An arm allowed 1 m/s TCP moves (a UR allows about that; the validator's default cap is 0.5 m/s)."""
+    robot = world.robot.robot
+    config = ValidatorConfig.for_robot(
+        robot, max_tcp_speed_m_s=1.0, max_tcp_accel_m_s2=3.0, max_joint_accel_rad_s2=20.0
+    )
+    return SimArm(world, validator=CommandValidator(config, fk_tcp=robot.fk_tcp))
+
+
+def _T_base_obj(world) -> np.ndarray:
+    return world.robot.T_base_world @ world.T_world_obj("obj")
+
+
+def _approach(arm, T_base_target, above_m):
+    T_pre = make_T(R_DOWN, T_base_target[:3, 3] + _z(above_m))
+    result = arm.robot.ik(T_pre, q_seed=arm.joint_positions(), frame="tcp")
+    assert result.success
+    arm.move_joints(result.q, 1.0, 2.0)
+    arm.move_linear(T_base_target, 0.1, 0.5)
+    return T_pre
+
+
+def _pad_normal_forces(world) -> dict[str, float]:
+    m, d = world.model, world.data
+    pads = {m.geom("pad_left").id: "pad_left", m.geom("pad_right").id: "pad_right"}
+    obj = world.object("obj").body_id
+    out = dict.fromkeys(pads.values(), 0.0)
+    f = np.zeros(6)
+    for i, c in enumerate(d.contact[: d.ncon]):
+        for pad, other in ((c.geom1, c.geom2), (c.geom2, c.geom1)):
+            if pad in pads and m.geom_bodyid[other] == obj:
+                mujoco.mj_contactForce(m, d, i, f)
+                out[pads[pad]] += f[0]
+    return out
+
+
+def test_parallel_jaw_lifts_a_half_kilo_box_and_carries_it_at_1_m_s():
+    world = _world_with("parallel_jaw", "box", {"width_m": 0.05, "height_m": 0.10, "depth_m": 0.05}, 0.5)
+    with world, _fast_arm(world) as arm, ParallelJawGripper(world) as gripper:
+        assert world.model.body_mass[world.object("obj").body_id] == pytest.approx(0.5, rel=1e-6)
+        assert gripper.width() == pytest.approx(0.085, abs=1e-4)  # starts open: the 85 mm stroke
+        p_box = _T_base_obj(world)[:3, 3]
+        T_grasp = make_T(R_DOWN, p_box + _z(0.02))  # pads 2 cm above the box centre
+        T_pre = _approach(arm, T_grasp, 0.17)
+        assert gripper.close(60.0)
+        assert gripper.width() == pytest.approx(0.05, abs=1e-3)  # the box's width (1 mm: pad softness)
+        forces = _pad_normal_forces(world)
+        for pad, f in forces.items():  # each finger pushes with the commanded force (5 %: contact dynamics)
+            assert f == pytest.approx(60.0, rel=0.05), pad
+        arm.move_linear(T_pre, 0.3, 1.0)
+        lifted = _T_base_obj(world)[2, 3] - p_box[2]
+        assert lifted == pytest.approx(0.17, abs=3e-3)  # 3 mm: servo sag under the load plus pad softness
+        # The 1 m/s carry: 0.6 m along base y at 3 m/s^2 (cruising 1 m/s for 0.27 s).
+        A = make_T(R_DOWN, [p_box[0], -0.3, T_pre[2, 3]])
+        B = make_T(R_DOWN, [p_box[0], 0.3, T_pre[2, 3]])
+        arm.move_linear(A, 0.3, 1.0)
+        T_tcp_box_before = invert_T(arm.tcp_pose()) @ _T_base_obj(world)
+        tcp = []
+        world.add_step_hook(lambda w: tcp.append(arm.tcp_pose()[:3, 3]))
+        arm.move_linear(B, 1.0, 3.0)
+        speed = np.linalg.norm(np.diff(tcp, axis=0), axis=1) / world.model.opt.timestep
+        assert speed.max() > 0.97  # the TCP really moved at 1 m/s (3 %: servo lag)
+        T_tcp_box_after = invert_T(arm.tcp_pose()) @ _T_base_obj(world)
+        slip_m = np.linalg.norm(T_tcp_box_after[:3, 3] - T_tcp_box_before[:3, 3])
+        assert slip_m < 5e-3  # the requirement: < 5 mm of slip in the TCP frame
+        assert gripper.grasp_detected()
+        gripper.open()
+        assert not gripper.grasp_detected() and gripper.width() == pytest.approx(0.085, abs=1e-3)
+
+
+def test_parallel_jaw_closes_on_nothing_and_checks_force():
+    world = _world_with("parallel_jaw", "box", {"width_m": 0.05, "height_m": 0.10, "depth_m": 0.05}, 0.5)
+    with world, ParallelJawGripper(world) as gripper:
+        assert not gripper.close(20.0)  # nothing between the jaws (the arm is at home, high above)
+        assert gripper.width() < 1e-3  # 1 mm: closed up to contact softness
+        with pytest.raises(InvalidInputError, match="235"):
+            gripper.close(500.0)
+        gripper.open()
+        assert gripper.width() == pytest.approx(0.085, abs=1e-3)
+    with pytest.raises(InvalidInputError, match="suction"):
+        SuctionGripper(world)
+
+
+def test_suction_lifts_a_carton_from_its_top_face_and_releases_it():
+    world = _world_with(
+        "suction", "carton", {"width_m": 0.3, "height_m": 0.2, "depth_m": 0.25}, 1.5, robot="ur10e"
+    )
+    with world, SimArm(world) as arm, SuctionGripper(world) as cup:
+        p_carton = _T_base_obj(world)[:3, 3]
+        top = p_carton + _z(0.1)
+        T_above = make_T(R_DOWN, top + _z(0.15))
+        result = arm.robot.ik(T_above, q_seed=arm.joint_positions(), frame="tcp")
+        arm.move_joints(result.q, 1.0, 2.0)
+        assert not cup.close(100.0)  # 15 cm above the carton: no contact, no weld
+        assert not world.data.eq_active.any()
+        arm.move_linear(make_T(R_DOWN, top - _z(0.002)), 0.05, 0.5)  # press the cup on by 2 mm
+        assert cup.close(100.0)
+        assert cup.held_body() == world.object("obj").body_id
+        T_cup_carton = invert_T(arm.tcp_pose()) @ _T_base_obj(world)
+        arm.move_linear(T_above, 0.3, 1.0)
+        assert cup.grasp_detected()
+        assert _T_base_obj(world)[2, 3] - p_carton[2] == pytest.approx(0.15, abs=5e-3)  # 5 mm: servo sag
+        drift = invert_T(arm.tcp_pose()) @ _T_base_obj(world) - T_cup_carton
+        assert np.abs(drift[:3, 3]).max() < 1e-3  # 1 mm: the weld holds the carton where it was picked
+        cup.open()
+        assert not cup.grasp_detected() and not world.data.eq_active.any()
+        world.step(500)  # it falls back onto the table (1 s)
+        assert _T_base_obj(world)[2, 3] == pytest.approx(p_carton[2], abs=2e-3)  # 2 mm: contact softness
+
+
+def test_suction_needs_a_face_contact_and_drops_an_overload():
+    world = _world_with(
+        "suction", "carton", {"width_m": 0.3, "height_m": 0.2, "depth_m": 0.25}, 1.5, robot="ur10e"
+    )
+    with world, SimArm(world) as arm, SuctionGripper(world) as cup:
+        p_carton = _T_base_obj(world)[:3, 3]
+        top = p_carton + _z(0.1)
+        # The cup tilted by 30 deg about x (beyond the 15 deg face tolerance), its lip pressed onto the top.
+        c, s = np.cos(np.radians(30)), np.sin(np.radians(30))
+        R_tilt = R_DOWN @ np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+        rim = 0.025 * s  # the lowest point of the tilted cup face is this far below the tcp
+        T_tilted = make_T(R_tilt, top + _z(rim - 0.002))
+        result = arm.robot.ik(
+            make_T(R_tilt, T_tilted[:3, 3] + _z(0.1)), q_seed=arm.joint_positions(), frame="tcp"
+        )
+        arm.move_joints(result.q, 1.0, 2.0)
+        arm.move_linear(T_tilted, 0.05, 0.5)
+        touching = [
+            c for c in world.data.contact[: world.data.ncon]
+            if world.model.geom("suction_cup_face").id in (c.geom1, c.geom2)
+        ]  # fmt: skip
+        assert touching  # the lip touches the carton ...
+        assert not cup.close(100.0)  # ... but not flat on a face: no seal
+        arm.move_linear(make_T(R_DOWN, top + _z(0.05)), 0.1, 0.5)
+        arm.move_linear(make_T(R_DOWN, top - _z(0.002)), 0.05, 0.5)
+        # A holding force of 10 N under a 1.5 kg carton (14.7 N): the vacuum lets go when it is lifted.
+        assert cup.close(10.0)
+        arm.move_linear(make_T(R_DOWN, top + _z(0.1)), 0.2, 1.0)
+        assert not cup.grasp_detected()
+        world.step(250)
+        assert _T_base_obj(world)[2, 3] == pytest.approx(p_carton[2], abs=2e-3)  # 2 mm: back on the table
