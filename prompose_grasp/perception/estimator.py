@@ -29,7 +29,7 @@ from prompose_grasp.errors import InvalidInputError, ObjectNotFoundError
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.pointcloud import back_project, valid_depth_mask
 from prompose_grasp.perception.fit import FitConfig, fit_pose
-from prompose_grasp.perception.grounding import Candidate, Grounder, GroundingResult
+from prompose_grasp.perception.grounding import Candidate, Grounder, GroundingResult, SupportPlane
 from prompose_grasp.perception.priors import PriorLibrary, ShapePrior
 from prompose_grasp.robot.interfaces import RGBDFrame
 
@@ -69,6 +69,7 @@ class Estimate:
         fit_loss: the L_geo value at the solution [m^2].
         timings_ms: per-stage wall time {"grounding", "prior", "pose", "total"} [ms].
         frame_index: position in the sequence (0 for single frames).
+        support_plane: the plane the object stands on, in the camera frame, when one was found.
     """
 
     pose: Pose9D
@@ -79,6 +80,7 @@ class Estimate:
     fit_loss: float
     timings_ms: dict[str, float] = field(default_factory=dict)
     frame_index: int = 0
+    support_plane: SupportPlane | None = None
 
     @cached_property
     def mesh_cam(self) -> trimesh.Trimesh:
@@ -232,4 +234,5 @@ class ProMPose:
             fit_loss=float(fit.loss) if math.isfinite(fit.loss) else math.inf,
             timings_ms=timings_ms,
             frame_index=frame_index,
+            support_plane=grounding.support_plane,
         )
