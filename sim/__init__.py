@@ -1,6 +1,6 @@
 """The MuJoCo stand-in: scenes, RGB-D cameras with sensor noise, the simulated arm and grippers.
 
-`sim` uses `prompose_grasp`; the library never imports `sim`. It arrives with issue 4.
+`sim` uses `prompose_grasp`; the library never imports `sim`.
 
 What is here (docs/sim.md has the details):
 
@@ -10,6 +10,9 @@ What is here (docs/sim.md has the details):
   lights, mount bodies) and the compiled `SimWorld` (step, reset, settle, render, ground truth).
 - `sim.camera`, `sim.noise`: MuJoCo's exact pinhole intrinsics, OpenCV camera frames, depth-sensor noise
   presets ("clean", "realsense", "kinect").
+- `sim.robot_scene`, `sim.arm`, `sim.grippers`: the UR arm of the robot layer in the scene (`add_robot`),
+  `SimArm` (an `Arm`), `ParallelJawGripper` and `SuctionGripper` (`Gripper`s); `SimCamera` (an `RGBDCamera`
+  returning the library's `RGBDFrame`).
 - `sim.scene_file`: YAML/JSON scenario files; `sim/scenes/` holds the tabletop, bin and logistics scenes.
 - `python -m sim view --scene FILE --out img.png`; `python -m sim.dataset --out DIR ...` (synthetic data).
 

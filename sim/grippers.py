@@ -447,7 +447,6 @@ class SuctionGripper(_SimGripperBase):
                 self._welds[int(m.eq_obj2id[e])] = e
         self._held_eq: int | None = None
         self._limit_n = self.geometry.max_force_n
-        world.add_step_hook(self._check_load)
 
     def _touching_face_body(self) -> int | None:
         """A free object whose face the cup face touches (normal within the angle limit), or None."""
@@ -497,6 +496,7 @@ class SuctionGripper(_SimGripperBase):
         m.geom_conaffinity[self._face] = 0
         d.eq_active[eq] = 1
         self._held_eq = eq
+        self.world.add_step_hook(self._check_load)  # only while holding: stepping is faster without hooks
         log.debug("suction: holding body %d", body)
 
     def _release(self, why: str) -> None:
@@ -505,6 +505,7 @@ class SuctionGripper(_SimGripperBase):
             log.debug("suction: released (%s)", why)
         m = self.world.model
         m.geom_contype[self._face], m.geom_conaffinity[self._face] = self._face_collision
+        self.world.remove_step_hook(self._check_load)
         self._held_eq = None
 
     def _check_load(self, world) -> None:

@@ -798,12 +798,20 @@ class SimWorld:
             return
         for _ in range(int(n)):
             mujoco.mj_step(self.model, self.data)
-            for hook in self._step_hooks:
+            for hook in tuple(self._step_hooks):  # a hook may remove itself
                 hook(self)
 
     def add_step_hook(self, hook: Callable[[SimWorld], None]) -> None:
-        """Call `hook(world)` after every physics step (the suction gripper checks its load this way)."""
+        """Call `hook(world)` after every physics step (the suction gripper checks its load this way).
+
+        While any hook is registered, `step(n)` runs the steps one by one from Python (slower).
+        """
         self._step_hooks.append(hook)
+
+    def remove_step_hook(self, hook: Callable[[SimWorld], None]) -> None:
+        """Stop calling `hook` (no error when it is not registered)."""
+        if hook in self._step_hooks:
+            self._step_hooks.remove(hook)
 
     @property
     def T_world_base(self) -> np.ndarray:
