@@ -18,8 +18,9 @@ from prompose_grasp.errors import PromposeError
 
 
 def _view(args: argparse.Namespace) -> int:
+    from prompose_grasp.perception.overlay import colorize_depth, distinct_colors, draw_poses
     from sim.scene_file import load_world
-    from sim.viz import colorize_depth, draw_boxes, tile
+    from sim.viz import tile
 
     rng = np.random.default_rng(args.seed)
     with load_world(args.scene, seed=args.seed) as world:
@@ -30,8 +31,11 @@ def _view(args: argparse.Namespace) -> int:
             color = frame.rgb
             if args.boxes:
                 gts = [g for g in world.ground_truth(name) if g.t_cam_obj_m[2] > 0]
-                boxes = [(g.R_cam_obj, g.t_cam_obj_m, g.size_m) for g in gts]
-                color = draw_boxes(color, frame.intrinsics, boxes, [g.name for g in gts])
+                poses = [g.as_pose9d() for g in gts]
+                labels = [g.name for g in gts]
+                color = draw_poses(
+                    color, frame.intrinsics, poses, distinct_colors(len(gts)), labels, thickness=1
+                )
             images += [color, colorize_depth(frame.depth_m)]
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)

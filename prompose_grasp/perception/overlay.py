@@ -12,11 +12,18 @@ from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.boxes import BOX_EDGES
 from prompose_grasp.geometry.camera import CameraIntrinsics
 
-__all__ = ["ESTIMATE_RGB", "GROUND_TRUTH_RGB", "colorize_depth", "draw_poses"]
+__all__ = ["ESTIMATE_RGB", "GROUND_TRUTH_RGB", "colorize_depth", "distinct_colors", "draw_poses"]
 
 #: The paper's Figure 7 colours: estimates in green, ground truth in red.
 ESTIMATE_RGB = (40, 220, 60)
 GROUND_TRUTH_RGB = (230, 40, 40)
+
+
+def distinct_colors(n: int) -> list[tuple[int, int, int]]:
+    """`n` saturated RGB colours with hues spread by the golden angle (neighbours in a list differ)."""
+    hues = (np.arange(n) * 47) % 180  # OpenCV hue is 0..179; 47 steps visit all hues before repeating
+    hsv = np.stack([hues, np.full(n, 220), np.full(n, 255)], axis=1).astype(np.uint8)[None]
+    return [tuple(int(c) for c in rgb) for rgb in cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0]]
 
 
 def colorize_depth(
