@@ -1,0 +1,12 @@
+"""Metric 9-DoF fit of a canonical shape prior to observed points (test-time L_geo; docs/fit.md)."""
+
+from prompose_grasp.perception.fit.core import (
+    FitConfig,
+    FitResult,
+    FitStage,
+    canonicalize_symmetry,
+    fit_pose,
+    visible_prior_mask,
+)
+
+__all__ = ["FitConfig", "FitResult", "FitStage", "canonicalize_symmetry", "fit_pose", "visible_prior_mask"]
