@@ -1,0 +1,311 @@
+"""Object candidates above the support plane: graph clustering on a pixel grid, then full-resolution masks.
+
+Clustering works on every `segment_stride_px`-th pixel. Two 4-neighbours on that grid join when both are
+above the plane, their 3D distance is small for their depth (the sensor's noise plus the spacing a steep
+surface shows) and their colours are close (a colour edge splits touching objects of different colour).
+Tiny segments (specular highlights, speckle) merge into the segment they touch geometrically, or vanish.
+Each segment is then painted at full resolution: the pixels of its grid cells that are above the plane,
+grown by the grid spacing into above-plane pixels, plus pixels without depth (occlusion shadows, holes)
+around it whose colour matches it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from prompose_grasp.perception.grounding.types import GroundingConfig, SupportPlane
+
+__all__ = ["Segment", "lab_image", "segment_objects"]
+
+#: The steepest surface (angle between surface normal and viewing ray) whose grid neighbours still join:
+#: neighbours one grid step apart are s z / f apart across the ray and up to s z / (f cos 75 deg)
+#: = 3.9 s z / f along it, so the side of a can seen at a grazing angle stays one piece.
+_GRAZING_FACTOR = 1.0 / np.cos(np.radians(75.0))
+
+#: Pixels without depth join a segment when their Lab colour is within this many `colour_edge` of the
+#: segment's median (shading over an object spans more than one neighbour-to-neighbour edge).
+_FILL_COLOUR_FACTOR = 2.0
+
+#: Adjacent segments of one colour whose footprints come closer than this [m] are one object seen as two
+#: surfaces (the outside of a bowl and its inside, a mug and the inside of its opening): the depth jump at
+#: the rim cuts the grid graph, but both surfaces stand on the same spot of the plane.
+_FOOTPRINT_JOIN_M = 0.02
+
+#: Segments are "adjacent" when their grid cells come within this many cells (the rim's depth jump leaves a
+#: band of pixels without depth between the two surfaces).
+_ADJACENT_CELLS = 2
+
+#: Without a support plane, segments bigger than this share of the valid pixels are background (walls, floor).
+_MAX_BACKGROUND_SHARE = 0.25
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One object candidate.
+
+    Attributes:
+        mask: (H, W) bool full-resolution mask.
+        points_cam: (N, 3) float64 camera-frame points of the mask's grid pixels with depth [m].
+        box_xyxy: (4,) int64 (x0, y0, x1, y1), inclusive.
+    """
+
+    mask: np.ndarray
+    points_cam: np.ndarray
+    box_xyxy: np.ndarray
+
+
+def lab_image(rgb: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float32 CIE Lab (L in [0, 100], a and b in about [-128, 127]) of (H, W, 3) uint8 RGB."""
+    return cv2.cvtColor(rgb.astype(np.float32) * (1.0 / 255.0), cv2.COLOR_RGB2Lab)
+
+
+def _colour_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Lab distance with lightness at half weight: shading changes L much more than it changes a and b."""
+    d = a - b
+    return np.sqrt(0.25 * d[..., 0] ** 2 + d[..., 1] ** 2 + d[..., 2] ** 2)
+
+
+def _above(points: np.ndarray, plane: SupportPlane | None, config: GroundingConfig) -> np.ndarray:
+    """(...,) bool: valid points above the noise-aware height cut (all valid points without a plane)."""
+    z = points[..., 2]
+    valid = np.isfinite(z)
+    if plane is None:
+        return valid
+    with np.errstate(invalid="ignore"):
+        h = points @ plane.normal_cam + plane.offset_m
+        cut = np.maximum(config.min_height_m, config.height_sigmas * config.sigma_m(z))
+        return valid & (h > cut) & (h < config.max_height_m)
+
+
+def _grid_labels(
+    P: np.ndarray, lab: np.ndarray, fg: np.ndarray, f_px: float, s: int, config: GroundingConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """Connected components of the grid graph, and the geometric-only neighbour pairs (for merging)."""
+    h, w = fg.shape
+    ids = np.arange(h * w).reshape(h, w)
+    z = P[..., 2]
+    rows_a, rows_b, geo_a, geo_b = [], [], [], []
+    for sl_a, sl_b in (
+        ((slice(None), slice(0, w - 1)), (slice(None), slice(1, w))),
+        ((slice(0, h - 1), slice(None)), (slice(1, h), slice(None))),
+    ):
+        both = fg[sl_a] & fg[sl_b]
+        za = np.where(both, z[sl_a], 0.0)
+        # noise of a difference of two readings is sqrt(2) sigma; plus a grazing surface's spacing
+        gap = (
+            np.maximum(
+                config.neighbour_gap_min_m, config.neighbour_gap_sigmas * np.sqrt(2.0) * config.sigma_m(za)
+            )
+            + _GRAZING_FACTOR * s * za / f_px
+        )
+        d3 = np.linalg.norm(P[sl_a] - P[sl_b], axis=-1)
+        with np.errstate(invalid="ignore"):
+            geo = both & (d3 < gap)
+        col = geo & (_colour_distance(lab[sl_a], lab[sl_b]) < config.colour_edge)
+        rows_a.append(ids[sl_a][col])
+        rows_b.append(ids[sl_b][col])
+        geo_a.append(ids[sl_a][geo & ~col])
+        geo_b.append(ids[sl_b][geo & ~col])
+    a = np.concatenate(rows_a)
+    b = np.concatenate(rows_b)
+    graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(h * w, h * w))
+    _, labels = connected_components(graph, directed=False)
+    labels = labels.reshape(h, w)
+    labels[~fg] = -1
+    return labels, np.stack([np.concatenate(geo_a), np.concatenate(geo_b)])
+
+
+def _merge_small(labels: np.ndarray, geo_pairs: np.ndarray, min_cells: int) -> np.ndarray:
+    """Relabel 0..K-1 after merging segments below `min_cells` grid cells into their geometric neighbour."""
+    flat = labels.ravel()
+    fg = flat >= 0
+    if not np.any(fg):
+        return labels
+    uniq, inverse, counts = np.unique(flat[fg], return_inverse=True, return_counts=True)
+    compact = np.full(flat.shape, -1, dtype=np.int64)
+    compact[fg] = inverse
+    small = counts < min_cells
+    target = np.arange(len(uniq))
+    if np.any(small) and geo_pairs.shape[1]:
+        la, lb = compact[geo_pairs[0]], compact[geo_pairs[1]]
+        pairs = np.concatenate([np.stack([la, lb], 1), np.stack([lb, la], 1)])
+        pairs = pairs[small[pairs[:, 0]] & ~small[pairs[:, 1]]]
+        if len(pairs):
+            pu, pc = np.unique(pairs, axis=0, return_counts=True)
+            order = np.lexsort((-pc, pu[:, 0]))  # per small segment, the neighbour with most shared edges
+            pu = pu[order]
+            first = np.r_[True, pu[1:, 0] != pu[:-1, 0]]
+            target[pu[first, 0]] = pu[first, 1]
+    keep = ~small | (target != np.arange(len(uniq)))
+    target = np.where(keep, target, -1)
+    out = np.where(fg, target[np.maximum(compact, 0)], -1)
+    # relabel to 0..K-1 in order of first appearance (raster order: deterministic)
+    vals = out[out >= 0]
+    _, first_idx = np.unique(vals, return_index=True)
+    old = vals[np.sort(first_idx)]
+    remap = np.full(len(uniq), -1, dtype=np.int64)
+    remap[old] = np.arange(len(old))
+    out = np.where(out >= 0, remap[np.maximum(out, 0)], -1)
+    return out.reshape(labels.shape)
+
+
+def _adjacent_pairs(labels: np.ndarray) -> set[tuple[int, int]]:
+    """Pairs (a, b), a < b, of labels whose cells come within `_ADJACENT_CELLS` of each other."""
+    size = 2 * _ADJACENT_CELLS + 1
+    kernel = np.ones((size, size), np.uint8)
+    shifted = (labels + 1).astype(np.float32)  # -1 (none) -> 0
+    hi = cv2.dilate(shifted, kernel) - 1.0
+    big = np.where(labels >= 0, shifted, np.float32(1e9))
+    lo = cv2.erode(big, kernel) - 1.0
+    own = labels >= 0
+    pairs: set[tuple[int, int]] = set()
+    for other in (hi, lo):
+        sel = own & (other >= 0) & (other < 1e8) & (other != labels)
+        if np.any(sel):
+            a = labels[sel]
+            b = other[sel].astype(np.int64)
+            for x, y in np.unique(np.stack([np.minimum(a, b), np.maximum(a, b)], 1), axis=0):
+                pairs.add((int(x), int(y)))
+    return pairs
+
+
+def _join_surfaces(
+    labels: np.ndarray, Pg: np.ndarray, lab_g: np.ndarray, plane_coords, config: GroundingConfig
+) -> np.ndarray:
+    """Merge adjacent segments of one colour that stand on the same footprint (see `_FOOTPRINT_JOIN_M`)."""
+    K = int(labels.max()) + 1
+    if K < 2:
+        return labels
+    pairs = _adjacent_pairs(labels)
+    if not pairs:
+        return labels
+    flat = labels.ravel()
+    order = np.argsort(flat, kind="stable")
+    starts = np.searchsorted(flat[order], np.arange(K + 1))
+    P = Pg.reshape(-1, 3)
+    L = lab_g.reshape(-1, 3)
+    chroma, foot = [], []
+    for k in range(K):
+        idx = order[starts[k] : starts[k + 1]]
+        chroma.append(np.median(L[idx, 1:], axis=0))
+        pts = P[idx]
+        pts = pts[np.isfinite(pts[:, 2])]
+        if len(pts) > 400:  # an even thinning keeps the outline; 400 points make the pair test cheap
+            pts = pts[:: int(np.ceil(len(pts) / 400))]
+        foot.append(plane_coords(pts)[:, :2] if plane_coords is not None else pts)
+    parent = np.arange(K)
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = int(parent[i])
+        return i
+
+    for a, b in sorted(pairs):
+        if not len(foot[a]) or not len(foot[b]):
+            continue
+        if np.linalg.norm(chroma[a] - chroma[b]) >= config.colour_edge:
+            continue
+        d = np.sqrt(((foot[a][:, None, :] - foot[b][None, :, :]) ** 2).sum(-1)).min()
+        if d < _FOOTPRINT_JOIN_M:
+            ra, rb = root(a), root(b)
+            parent[max(ra, rb)] = min(ra, rb)
+    roots = np.array([root(k) for k in range(K)])
+    _, new = np.unique(roots, return_inverse=True)
+    return np.where(labels >= 0, new[np.maximum(labels, 0)], -1)
+
+
+def segment_objects(
+    rgb: np.ndarray,
+    point_map: np.ndarray,
+    f_px: float,
+    plane: SupportPlane | None,
+    config: GroundingConfig,
+    support_hull: np.ndarray | None = None,
+    plane_coords=None,
+) -> list[Segment]:
+    """Object candidates in an RGB-D frame.
+
+    Args:
+        rgb: (H, W, 3) uint8 colour image.
+        point_map: (H, W, 3) float64 camera-frame points [m], NaN where there is no depth.
+        f_px: mean focal length [px] (sets the expected spacing of neighbouring points).
+        plane: the support plane (objects are above it), or None (every valid pixel is a candidate point).
+        config: thresholds.
+        support_hull: optional (M, 2) float32 polygon in plane (right, forward) coordinates; segments whose
+            footprint centre lies outside it (by more than 5 cm) stand on something else and are dropped.
+        plane_coords: callable (N, 3) points -> (N, 3) plane coordinates, needed with `support_hull`.
+
+    Returns:
+        Segments in raster order of their first grid cell.
+    """
+    H, W = point_map.shape[:2]
+    s = config.segment_stride_px
+    Pg = np.ascontiguousarray(point_map[::s, ::s])
+    h, w = Pg.shape[:2]
+    # colours of the grid cells: the s x s block means (less read noise than single pixels)
+    small_rgb = cv2.resize(rgb[: h * s, : w * s], (w, h), interpolation=cv2.INTER_AREA) if s > 1 else rgb
+    lab_g = lab_image(small_rgb[:h, :w])
+    fg = _above(Pg, plane, config)
+    labels, geo = _grid_labels(Pg, lab_g, fg, f_px, s, config)
+    min_cells = max(1, int(np.ceil(config.min_segment_px / (s * s))))
+    labels = _merge_small(labels, geo, min_cells)
+    labels = _join_surfaces(labels, Pg, lab_g, plane_coords if plane is not None else None, config)
+    K = int(labels.max()) + 1
+    if K == 0:
+        return []
+
+    rows = np.minimum(np.arange(H) // s, h - 1)
+    cols = np.minimum(np.arange(W) // s, w - 1)
+    lab_full = labels[np.ix_(rows, cols)]
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * s + 1, 2 * s + 1))
+    close_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (9, 9))
+    total_valid = max(1, int(np.isfinite(Pg[..., 2]).sum()))
+    pad = 2 * s + 5
+
+    taken = np.zeros((H, W), dtype=bool)  # pixels already given to a segment: masks never overlap
+    segments: list[Segment] = []
+    for k in range(K):
+        vv, uu = np.nonzero(labels == k)
+        if plane is None and len(vv) > _MAX_BACKGROUND_SHARE * total_valid:
+            continue
+        pts = Pg[vv, uu]
+        pts = pts[np.isfinite(pts[:, 2])]
+        if support_hull is not None and plane_coords is not None and len(pts):
+            centre = plane_coords(pts)[:, :2].mean(axis=0)
+            inside = cv2.pointPolygonTest(support_hull, (float(centre[0]), float(centre[1])), True)
+            if inside < -0.05:  # 5 cm: the centre of an object overhanging the edge still counts
+                continue
+        y0, y1 = max(0, vv.min() * s - pad), min(H, (vv.max() + 1) * s + pad)
+        x0, x1 = max(0, uu.min() * s - pad), min(W, (uu.max() + 1) * s + pad)
+        roi_lab = lab_full[y0:y1, x0:x1]
+        own = roi_lab == k
+        roi_points = point_map[y0:y1, x0:x1]
+        above = _above(roi_points, plane, config)
+        invalid = ~np.isfinite(roi_points[..., 2])
+        others = ((roi_lab >= 0) & ~own) | taken[y0:y1, x0:x1]
+        seed = own & above
+        grown = cv2.dilate(seed.view(np.uint8), kernel).view(bool) & above & ~others
+        mask = seed | grown
+        # pixels without depth around and inside the segment: keep those of the segment's colour
+        lab_roi = lab_image(rgb[y0:y1, x0:x1])
+        ref = np.median(lab_roi[mask], axis=0) if mask.any() else np.median(lab_g[vv, uu], axis=0)
+        near = _colour_distance(lab_roi, ref) < _FILL_COLOUR_FACTOR * config.colour_edge
+        closed = cv2.morphologyEx(mask.view(np.uint8), cv2.MORPH_CLOSE, close_kernel).view(bool)
+        grown_inv = cv2.dilate(mask.view(np.uint8), kernel).view(bool)
+        mask |= (closed | grown_inv) & invalid & near & ~others
+        mask &= ~taken[y0:y1, x0:x1]
+        if mask.sum() < config.min_segment_px:
+            continue
+        full = np.zeros((H, W), dtype=bool)
+        full[y0:y1, x0:x1] = mask
+        taken[y0:y1, x0:x1] |= mask
+        my, mx = np.nonzero(mask)
+        box = np.array([x0 + mx.min(), y0 + my.min(), x0 + mx.max(), y0 + my.max()], dtype=np.int64)
+        segments.append(Segment(mask=full, points_cam=pts, box_xyxy=box))
+    return segments

@@ -1,0 +1,222 @@
+"""Value types of language grounding: config, support plane, candidates and the result (all frozen)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from prompose_grasp.errors import InvalidInputError
+
+__all__ = [
+    "Candidate",
+    "CandidateAttributes",
+    "GroundingConfig",
+    "GroundingResult",
+    "GroundingTiming",
+    "SupportPlane",
+]
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, copy=True)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class GroundingConfig:
+    """Settings of the embedded grounder. Lengths in metres, angles in degrees, pixels as stated.
+
+    Attributes:
+        plane_stride_px: the support plane is fitted on every `plane_stride_px`-th pixel in both directions.
+        segment_stride_px: objects are clustered on this pixel grid, then painted at full resolution.
+        ransac_iterations: plane hypotheses drawn (3 points each).
+        ransac_inlier_m: a point within this distance of a hypothesis plane is an inlier [m]. A D435-like
+            sensor has sigma(z) = 1 mm + 3.7 mm/m^2 z^2, 4 mm at 0.9 m; 12 mm keeps ~99 % of a table's
+            points up to ~1 m while a 3-point hypothesis still has to be roughly right to collect them.
+        seed: seed of the RANSAC generator (results are deterministic for a given input).
+        noise_sigma_a_m, noise_sigma_b_per_m: axial depth noise model sigma(z) = a + b z^2 [m] (defaults:
+            RealSense D435-like, as in `sim/noise.py`).
+        height_sigmas: a point is "above the plane" when its height exceeds this many sigma(z) ...
+        min_height_m: ... and at least this [m]. 2.5 sigma at the tabletop distances of 0.6-0.9 m is
+            5.6-10 mm (0.6 % of table pixels pass, as isolated specks the size filter removes); 8 mm is that
+            band's middle, so the height cut is max(8 mm, 2.5 sigma(z)).
+        max_height_m: points higher than this above the plane are not objects (people, shelves) [m].
+        neighbour_gap_sigmas, neighbour_gap_min_m: two neighbouring grid points join when their 3D distance
+            is below max(gap_min, k sigma(z)) plus the spacing a surface at 75 deg to the ray would show.
+        colour_edge: neighbours whose colours differ by more than this (CIE Lab distance, 8-bit Lab units
+            from OpenCV) are split: touching objects of different colour become separate candidates.
+        min_segment_px: segments smaller than this many full-resolution pixels are merged into a touching
+            segment or dropped.
+        max_candidates: at most this many candidates are returned (the best ones).
+        device: torch device of the text encoder.
+    """
+
+    plane_stride_px: int = 4
+    segment_stride_px: int = 2
+    ransac_iterations: int = 128
+    ransac_inlier_m: float = 0.012
+    seed: int = 0
+    noise_sigma_a_m: float = 0.001
+    noise_sigma_b_per_m: float = 0.0037
+    height_sigmas: float = 2.5
+    min_height_m: float = 0.008
+    max_height_m: float = 0.6
+    neighbour_gap_sigmas: float = 4.0
+    neighbour_gap_min_m: float = 0.006
+    colour_edge: float = 28.0
+    min_segment_px: int = 150
+    max_candidates: int = 32
+    device: str = "cpu"
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name == "device":
+                if not isinstance(value, str) or not value.strip():
+                    msg = f"GroundingConfig.device must be a torch device string, got {value!r}"
+                    raise InvalidInputError(msg)
+                continue
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise InvalidInputError(f"GroundingConfig.{f.name} must be a number, got {value!r}")
+            if f.name == "seed":
+                continue
+            if not math.isfinite(value) or value <= 0:
+                raise InvalidInputError(f"GroundingConfig.{f.name} must be finite and > 0, got {value!r}")
+        ints = ("plane_stride_px", "segment_stride_px", "ransac_iterations", "min_segment_px")
+        ints += ("max_candidates",)
+        for name in ints:
+            if not isinstance(getattr(self, name), int):
+                raise InvalidInputError(f"GroundingConfig.{name} must be an int, got {getattr(self, name)!r}")
+        if self.max_height_m <= self.min_height_m:
+            raise InvalidInputError(
+                f"GroundingConfig.max_height_m ({self.max_height_m}) must exceed "
+                f"min_height_m ({self.min_height_m})"
+            )
+
+    def sigma_m(self, z_m: np.ndarray | float) -> np.ndarray | float:
+        """Axial depth noise [m] at depth z [m]: a + b z^2."""
+        return self.noise_sigma_a_m + self.noise_sigma_b_per_m * np.square(z_m)
+
+
+@dataclass(frozen=True)
+class SupportPlane:
+    """The plane objects stand on, in the camera frame: points x with n . x + d = 0.
+
+    Attributes:
+        normal_cam: (3,) float64 unit normal, pointing to the side the camera is on ("up" for a table seen
+            from above).
+        offset_m: d [m]; the signed height of a point above the plane is n . x + d, so the camera's own
+            height above the plane is d (> 0).
+        inlier_fraction: share of the valid sampled points within the inlier distance, in [0, 1].
+    """
+
+    normal_cam: np.ndarray
+    offset_m: float
+    inlier_fraction: float
+
+    def __post_init__(self) -> None:
+        n = np.asarray(self.normal_cam, dtype=np.float64)
+        if n.shape != (3,) or not np.all(np.isfinite(n)) or abs(np.linalg.norm(n) - 1.0) > 1e-6:
+            raise InvalidInputError(f"normal_cam must be a finite (3,) unit vector, got {self.normal_cam!r}")
+        object.__setattr__(self, "normal_cam", _frozen(n))
+        object.__setattr__(self, "offset_m", float(self.offset_m))
+        object.__setattr__(self, "inlier_fraction", float(self.inlier_fraction))
+
+    def height_m(self, points_cam: np.ndarray) -> np.ndarray:
+        """Signed heights [m] of (..., 3) camera-frame points (positive on the camera's side)."""
+        return np.asarray(points_cam, dtype=np.float64) @ self.normal_cam + self.offset_m
+
+
+@dataclass(frozen=True)
+class CandidateAttributes:
+    """What the grounder saw of one candidate (all measured from the image, none from ground truth).
+
+    Attributes:
+        colour_name: dominant colour word of the fixed palette (`describe.PALETTE`).
+        colour_rgb: (3,) uint8 median colour of the pixels of that colour.
+        size_class: "small" | "medium" | "large" from the largest extent (`describe.SIZE_CLASSES`).
+        shape_family: "box" | "cylinder" | "sphere" | "flat" | "elongated" | "irregular".
+        centroid_cam: (3,) float64 mean of the candidate's points in the camera frame [m].
+        extent_m: (3,) float64 visible extents [m] in the support-plane frame: footprint length, footprint
+            width (length >= width) and height above the plane (height only: full extents when no plane).
+        num_pixels: pixels in the full-resolution mask.
+        description: the generated phrase scored against the prompt ("a small yellow cylinder-shaped object").
+    """
+
+    colour_name: str
+    colour_rgb: np.ndarray
+    size_class: str
+    shape_family: str
+    centroid_cam: np.ndarray
+    extent_m: np.ndarray
+    num_pixels: int
+    description: str
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "colour_rgb", _frozen(np.asarray(self.colour_rgb, dtype=np.uint8)))
+        object.__setattr__(self, "centroid_cam", _frozen(np.asarray(self.centroid_cam, dtype=np.float64)))
+        object.__setattr__(self, "extent_m", _frozen(np.asarray(self.extent_m, dtype=np.float64)))
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One grounded object.
+
+    Attributes:
+        mask: (H, W) bool, full image resolution.
+        box_xyxy: (4,) int64 tight pixel box (x0, y0, x1, y1), inclusive of both corners' pixels.
+        score: how well it matches the prompt; higher is better (in (0, 1) for the embedded grounder).
+        attributes: measured attributes (None for grounders that do not measure them, e.g. the DINO adapter).
+    """
+
+    mask: np.ndarray
+    box_xyxy: np.ndarray
+    score: float
+    attributes: CandidateAttributes | None = None
+
+    def __post_init__(self) -> None:
+        m = np.asarray(self.mask)
+        if m.ndim != 2 or m.dtype != np.bool_:
+            raise InvalidInputError(f"Candidate.mask must be an (H, W) bool image, got {m.dtype} {m.shape}")
+        b = np.asarray(self.box_xyxy)
+        if b.shape != (4,):
+            raise InvalidInputError(f"Candidate.box_xyxy must have shape (4,), got {b.shape}")
+        object.__setattr__(self, "mask", _frozen(m))
+        object.__setattr__(self, "box_xyxy", _frozen(b.astype(np.int64)))
+        object.__setattr__(self, "score", float(self.score))
+
+
+@dataclass(frozen=True)
+class GroundingTiming:
+    """Wall time of the stages [s]; `total_s` is the whole `ground` call."""
+
+    plane_s: float = 0.0
+    segment_s: float = 0.0
+    describe_s: float = 0.0
+    score_s: float = 0.0
+    total_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class GroundingResult:
+    """The result of grounding one prompt in one RGB-D frame.
+
+    Attributes:
+        prompt: the prompt as given.
+        candidates: best first (descending score).
+        support_plane: the plane objects stand on, or None (no plane found, or the grounder does not fit one).
+        timing: stage wall times.
+    """
+
+    prompt: str
+    candidates: tuple[Candidate, ...]
+    support_plane: SupportPlane | None
+    timing: GroundingTiming = field(default_factory=GroundingTiming)
+
+    @property
+    def best(self) -> Candidate | None:
+        """The highest-scoring candidate, or None when there is none."""
+        return self.candidates[0] if self.candidates else None

@@ -1,0 +1,66 @@
+"""A tabletop scene for the grounding tests: distinct colours, two identical cups either side of a bowl."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+_CUP = {"bottom_radius_m": 0.025, "top_radius_m": 0.038, "height_m": 0.09}
+
+#: (name, family, params, rgb, (x, y) on the table [m], yaw [rad])
+OBJECTS = (
+    ("can", "can", {"radius_m": 0.033, "height_m": 0.12}, (0.9, 0.8, 0.1), (-0.24, 0.10), 0.0),
+    ("mug", "mug", {"radius_m": 0.042, "height_m": 0.095}, (0.8, 0.1, 0.1), (-0.02, 0.17), 0.4),
+    ("box", "box", {"width_m": 0.18, "height_m": 0.25, "depth_m": 0.07}, (0.15, 0.3, 0.85), (0.25, 0.15),
+     0.3),
+    ("bowl", "bowl", {"radius_m": 0.08, "height_m": 0.05}, (0.15, 0.6, 0.2), (0.03, -0.04), 0.0),
+    ("ball", "ball", {"radius_m": 0.028}, (0.95, 0.5, 0.1), (-0.08, -0.20), 0.0),
+    ("cup_left", "cup", _CUP, (0.55, 0.2, 0.75), (-0.16, -0.05), 0.0),
+    ("cup_right", "cup", _CUP, (0.55, 0.2, 0.75), (0.22, -0.06), 0.0),
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class SceneFrame:
+    rgb: np.ndarray
+    depth_m: np.ndarray
+    intrinsics: object
+    gt_mask: np.ndarray  # (H, W) instance ids: tests only
+    ids: dict[str, int]  # object name -> instance id
+    up_cam: np.ndarray  # table normal (world +z) in the camera frame
+
+
+def render_scene(width: int = 640, height: int = 480, seed: int = 0) -> SceneFrame:
+    from sim import NOISE_PRESETS, Appearance, CameraSpec, SceneBuilder, look_at, make_object, upright_pose
+
+    b = SceneBuilder("grounding_test")
+    b.add_floor()
+    b.add_skybox()
+    b.add_light([0.5, -0.5, 2.5])
+    table = b.add_table(size_xy_m=(1.2, 0.8), height_m=0.75)
+    ids = {}
+    for name, family, params, rgb, xy, yaw in OBJECTS:
+        asset = make_object(family, params)
+        info = b.add_object(
+            asset, name, upright_pose(asset, table, xy, yaw), appearance=Appearance(rgba=(*rgb, 1))
+        )
+        ids[name] = info.instance_id
+    cam = CameraSpec(
+        "front",
+        width,
+        height,
+        58.0,
+        look_at([0.0, -0.75, 1.25], [0.0, 0.0, 0.75]),
+        noise=NOISE_PRESETS["realsense"],
+    )
+    b.add_camera(cam)
+    with b.build() as world:
+        world.settle()
+        frame = world.render("front", rng=np.random.default_rng(seed))
+        gt = world.ground_truth_mask("front")
+        up_cam = world.T_world_cam("front")[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+    return SceneFrame(frame.rgb, frame.depth_m, frame.intrinsics, gt, ids, up_cam)
