@@ -53,3 +53,16 @@ class DeviceNotConnectedError(PromposeError, RuntimeError):
 
 class ObjectNotFoundError(PromposeError):
     """No object in the frame matches the prompt (grounding found no candidate)."""
+
+
+class NoFeasibleGrasp(PromposeError):
+    """Every grasp candidate was rejected; `rejected` counts the candidates per reason ("stroke", "ik",
+    "collision_object", ...), and the message lists them."""
+
+    def __init__(self, rejected: dict[str, int], n_candidates: int, what: str = "grasp"):
+        self.rejected = dict(rejected)
+        self.n_candidates = int(n_candidates)
+        counts = ", ".join(f"{k}: {v}" for k, v in sorted(self.rejected.items(), key=lambda kv: -kv[1]))
+        super().__init__(
+            f"no feasible {what} among {self.n_candidates} candidates (rejected: {counts or 'none'})"
+        )

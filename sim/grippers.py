@@ -36,13 +36,15 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from prompose_grasp.errors import DeviceNotConnectedError, InvalidInputError
-from prompose_grasp.geometry.se3 import make_T, quat_wxyz_from_R
+from prompose_grasp.geometry.se3 import quat_wxyz_from_R
+
+# The geometry lives in the library (one source of truth for planning and simulation); sim builds from it.
+from prompose_grasp.grasp.grippers import GRIPPER_TCP, ParallelJawGeometry, SuctionCupGeometry
 from prompose_grasp.robot.interfaces import Gripper
 
 __all__ = [
@@ -73,83 +75,6 @@ _FINGER_KV = 100.0
 _OPEN_FORCE_N = 100.0  # force limit while opening [N]
 
 
-@dataclass(frozen=True)
-class ParallelJawGeometry:
-    """Dimensions of the parallel-jaw gripper [m], [kg], [N] (defaults: a Robotiq 2F-85 class gripper).
-
-    Attributes:
-        stroke_m: full opening between the pad faces (each finger travels half of it).
-        palm_z_m: distance from the flange to the underside of the housing (where the fingers start).
-        finger_length_m: finger length below the palm.
-        pad_size_m: (width along x, thickness along y, length along z) of each pad.
-        housing_half_m: half extents of the housing box (x, y, z).
-        housing_mass_kg, finger_mass_kg: masses.
-        min_force_n, max_force_n: accepted grip-force range per finger (2F-85: 20-235 N).
-        close_speed_m_s: finger speed while closing (2F-85: 20-150 mm/s).
-    """
-
-    stroke_m: float = 0.085
-    palm_z_m: float = 0.10
-    finger_length_m: float = 0.06
-    pad_size_m: tuple[float, float, float] = (0.022, 0.006, 0.030)
-    housing_half_m: tuple[float, float, float] = (0.035, 0.05, 0.045)
-    housing_mass_kg: float = 0.75
-    finger_mass_kg: float = 0.08
-    min_force_n: float = 20.0
-    max_force_n: float = 235.0
-    close_speed_m_s: float = 0.1
-
-    @property
-    def tcp_z_m(self) -> float:
-        """Distance from the flange to the tcp (centre of the pads) along flange z [m]."""
-        return self.palm_z_m + self.finger_length_m - self.pad_size_m[2] / 2.0
-
-    @property
-    def T_flange_tcp(self) -> np.ndarray:
-        return make_T(np.eye(3), [0.0, 0.0, self.tcp_z_m])
-
-
-@dataclass(frozen=True)
-class SuctionCupGeometry:
-    """Dimensions and holding limits of the suction cup [m], [kg], [N].
-
-    Attributes:
-        cup_radius_m: radius of the cup face (50 mm cup).
-        cup_height_m: thickness of the cup lip.
-        stem_length_m: from the flange to the cup (the tcp sits at stem + cup height).
-        stem_radius_m: stem radius.
-        mass_kg: mass of stem and cup.
-        max_force_n: largest load the vacuum holds (about 60 kPa over a 50 mm cup: 118 N).
-        max_face_angle_deg: the cup seals only on a face whose normal is within this angle of the cup axis.
-        lip_friction: friction coefficient of the lip; the cup holds a shear load up to lip_friction x
-            (holding force - pull).
-    """
-
-    cup_radius_m: float = 0.025
-    cup_height_m: float = 0.012
-    stem_length_m: float = 0.088
-    stem_radius_m: float = 0.012
-    mass_kg: float = 0.35
-    max_force_n: float = 118.0
-    max_face_angle_deg: float = 15.0
-    lip_friction: float = 0.8
-
-    @property
-    def tcp_z_m(self) -> float:
-        return self.stem_length_m + self.cup_height_m
-
-    @property
-    def T_flange_tcp(self) -> np.ndarray:
-        return make_T(np.eye(3), [0.0, 0.0, self.tcp_z_m])
-
-
-#: T_flange_tcp (4, 4) of each gripper type with its default geometry.
-GRIPPER_TCP: dict[str, np.ndarray] = {
-    "parallel_jaw": ParallelJawGeometry().T_flange_tcp,
-    "suction": SuctionCupGeometry().T_flange_tcp,
-}
-
-
 def _robot_geom(body, name: str, **kwargs):
     g = body.add_geom(name=name, **kwargs)
     g.group = GROUP_ROBOT
@@ -178,13 +103,14 @@ def add_parallel_jaw(
     hx, hy, hz = g.housing_half_m
     base.inertia = [m * g.housing_mass_kg / 3.0 for m in (hy**2 + hz**2, hx**2 + hz**2, hx**2 + hy**2)]
     base.explicitinertial = True
-    _robot_geom(base, "gripper_coupling", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.038, 0.005, 0],
-                pos=[0, 0, 0.005], rgba=[0.15, 0.15, 0.15, 1])  # fmt: skip
+    ch = g.coupling_height_m / 2.0
+    _robot_geom(base, "gripper_coupling", type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+                size=[g.coupling_radius_m, ch, 0], pos=[0, 0, ch], rgba=[0.15, 0.15, 0.15, 1])  # fmt: skip
     _robot_geom(base, "gripper_housing", type=mujoco.mjtGeom.mjGEOM_BOX, size=list(g.housing_half_m),
                 pos=[0, 0, g.palm_z_m - hz], rgba=[0.2, 0.2, 0.22, 1])  # fmt: skip
     half_stroke = g.stroke_m / 2.0
     pw, pt, pl = g.pad_size_m
-    finger_t = 0.008  # finger plate thickness behind the pad [m]
+    finger_t = g.finger_thickness_m  # finger plate thickness behind the pad [m]
     for side, sign in (("left", 1.0), ("right", -1.0)):
         # Body frame: on the centre plane at the palm; the joint moves it along sign*y so the pad's inner
         # face sits at y = sign * q.
@@ -203,7 +129,7 @@ def add_parallel_jaw(
             damping=1.0,
         )
         _robot_geom(finger, f"finger_{side}_plate", type=mujoco.mjtGeom.mjGEOM_BOX,
-                    size=[pw / 2.0 + 0.002, finger_t / 2.0, g.finger_length_m / 2.0],
+                    size=[pw / 2.0 + g.finger_width_margin_m, finger_t / 2.0, g.finger_length_m / 2.0],
                     pos=[0.0, sign * (pt + finger_t / 2.0), g.finger_length_m / 2.0],
                     rgba=[0.55, 0.55, 0.58, 1])  # fmt: skip
         pad = _robot_geom(finger, f"pad_{side}", type=mujoco.mjtGeom.mjGEOM_BOX,
@@ -255,11 +181,12 @@ def add_suction_cup(
     cup.ipos = [0.0, 0.0, -g.tcp_z_m / 2.0]
     cup.inertia = [g.mass_kg * g.tcp_z_m**2 / 12.0] * 2 + [g.mass_kg * g.cup_radius_m**2 / 2.0]
     cup.explicitinertial = True
-    _robot_geom(cup, "suction_body", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.035, 0.02, 0],
-                pos=[0, 0, -g.tcp_z_m + 0.02], rgba=[0.2, 0.2, 0.22, 1])  # fmt: skip
+    bh = g.body_height_m / 2.0
+    _robot_geom(cup, "suction_body", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[g.body_radius_m, bh, 0],
+                pos=[0, 0, -g.tcp_z_m + bh], rgba=[0.2, 0.2, 0.22, 1])  # fmt: skip
     _robot_geom(cup, "suction_stem", type=mujoco.mjtGeom.mjGEOM_CYLINDER,
-                size=[g.stem_radius_m, (g.stem_length_m - 0.04) / 2.0, 0],
-                pos=[0, 0, -g.cup_height_m - (g.stem_length_m - 0.04) / 2.0],
+                size=[g.stem_radius_m, (g.stem_length_m - g.body_height_m) / 2.0, 0],
+                pos=[0, 0, -g.cup_height_m - (g.stem_length_m - g.body_height_m) / 2.0],
                 rgba=[0.6, 0.6, 0.62, 1])  # fmt: skip
     face = _robot_geom(cup, "suction_cup_face", type=mujoco.mjtGeom.mjGEOM_CYLINDER,
                        size=[g.cup_radius_m, g.cup_height_m / 2.0, 0], pos=[0, 0, -g.cup_height_m / 2.0],
