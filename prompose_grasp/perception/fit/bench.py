@@ -182,7 +182,7 @@ def _result_dict(gts: list[tuple[int, Pose9D, int]], preds: list[tuple[int, Pose
 def run(
     data: Path, split: str = "test", max_frames: int | None = None, config: FitConfig | None = None
 ) -> dict[str, Any]:
-    from prompose_grasp.eval import compute_nocs_map
+    from prompose_grasp.eval import compute_nocs_map, nocs_box_iou, nocs_pose_error
     from prompose_grasp.perception.priors import PriorLibrary
 
     cfg = config or FitConfig()
@@ -195,6 +195,7 @@ def run(
     per_image: dict[str, list[dict[str, Any]]] = {m: [] for m in methods}
     times: dict[str, list[float]] = defaultdict(list)
     plane_err_deg: list[float] = []
+    records: list[dict[str, Any]] = []
     sym_by_cat: dict[str, str] = {}
     rng = np.random.default_rng(0)
     frames_done = 0
@@ -254,6 +255,15 @@ def run(
                 preds["obb"].append((cls, obb_baseline(pts, up)))
                 times["obb"].append(time.perf_counter() - t0)
                 preds["obb_plane"].append((cls, obb_baseline(pts, up, plane)))
+                ysym_obj = obj["symmetry"] == "y_continuous" or (cat == "mug" and gts[-1][2] == 0)
+                rec = {"scene": scene, "frame": meta["frame"], "id": iid, "category": cat, "points": len(pts)}
+                for m in ("ours", "obb"):
+                    pred = preds[m][-1][1]
+                    a, sa = pred.to_nocs_sRT()
+                    b, sb = gt.to_nocs_sRT()
+                    rec[f"{m}_iou"] = nocs_box_iou(a, sa, b, sb, iou_mode="exact", y_symmetric=ysym_obj)
+                    rec[f"{m}_deg"], rec[f"{m}_cm"] = nocs_pose_error(a, b, y_symmetric=ysym_obj)
+                records.append(rec)
             for m in methods:
                 per_image[m].append(_result_dict(gts, preds[m]))
             frames_done += 1
@@ -298,6 +308,7 @@ def run(
             "max": float(np.max(plane_err_deg)) if plane_err_deg else math.nan,
         },
         "tables": tables,
+        "objects": records,
         "timing": timing,
         "machine": {
             "platform": platform.platform(),

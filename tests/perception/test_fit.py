@@ -1,0 +1,211 @@
+"""Metric 9-DoF fit: known answers by construction (visible surface samples of a scaled, posed prior with
+RealSense-like noise), warm starts, the upright constraint, symmetry-canonical output, bad input."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+
+from prompose_grasp.errors import InvalidInputError
+from prompose_grasp.geometry.pose9d import Pose9D
+from prompose_grasp.geometry.se3 import rotation_angle, so3_exp
+from prompose_grasp.perception.fit import FitConfig, FitStage, canonicalize_symmetry, fit_pose
+from prompose_grasp.perception.priors import PriorLibrary
+
+# Rotation error bound [deg]: noise of 2-5 mm over objects 7-30 cm wide tilts a fitted face by < 2 deg; the
+# yaw of a mug rests on its handle (~1 cm of points), so a few degrees; 5 deg is also the strict NOCS bar.
+ROT_TOL_DEG = 5.0
+# Centre error bound [m]: 1 cm, the brief's bar; noise averages out over thousands of points (~1 mm), what is
+# left is the mean shape of the prior against the instance.
+T_TOL_M = 0.01
+# Size error bound (relative): 10 %; the prior is the family's exact shape here, so the error is noise and
+# the missing grazing-angle band at the silhouette (a few mm on 7-30 cm).
+SIZE_RTOL = 0.10
+# Exact 3D IoU lower bound (symmetry-aware): the NOCS 3D75 bar; errors within the bounds above keep it.
+IOU_MIN = 0.75
+# Up direction bound [deg] when the support normal is given: the fit holds +y on it exactly (rounding only).
+UP_TOL_DEG = 2.0
+
+
+@pytest.fixture(scope="module")
+def library() -> PriorLibrary:
+    return PriorLibrary()
+
+
+def _dense_surface(prior, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    pts, face = trimesh.sample.sample_surface(prior.mesh, n, seed=seed)
+    return np.asarray(pts), np.asarray(prior.mesh.face_normals)[face]
+
+
+def _upright_scene(prior, rng: np.random.Generator):
+    """A posed, scaled prior standing on a table seen from 30-65 deg elevation at 0.6-0.9 m, and its visible
+    surface points with axial noise 1 mm + 3.7 mm/m^2 z^2 (RealSense D435-like, docs/sim.md)."""
+    elevation = math.radians(rng.uniform(30.0, 65.0))
+    up = np.array([0.0, -math.cos(elevation), -math.sin(elevation)])  # table normal, camera frame
+    e1 = np.array([1.0, 0.0, 0.0])
+    e2 = np.cross(up, e1)
+    yaw = rng.uniform(0.0, 2.0 * math.pi)
+    x = math.cos(yaw) * e1 + math.sin(yaw) * e2
+    R = np.column_stack([x, up, np.cross(x, up)])
+    size = prior.typical_size_m * rng.uniform(0.85, 1.2, 3)
+    if prior.symmetry == "y_continuous":
+        size[2] = size[0]
+    t = np.array([rng.uniform(-0.08, 0.08), rng.uniform(-0.05, 0.05), rng.uniform(0.6, 0.9)])
+    gt = Pose9D(R, t, size)
+    pts_u, nrm_u = _dense_surface(prior, 12000, int(rng.integers(1 << 30)))
+    pts = gt.points_to_camera(pts_u)
+    nrm = (nrm_u / size) @ R.T
+    pts = pts[np.einsum("ij,ij->i", nrm, pts) < 0.0]
+    sigma = 0.001 + 0.0037 * pts[:, 2] ** 2
+    pts = (
+        pts
+        + (pts / np.linalg.norm(pts, axis=1, keepdims=True))
+        * rng.normal(size=len(pts))[:, None]
+        * sigma[:, None]
+    )
+    bottom = t - 0.5 * size[1] * up
+    plane = np.array([*up, -float(up @ bottom)])
+    return gt, pts, up, plane
+
+
+def _rotation_error_deg(pred: Pose9D, gt: Pose9D, symmetry: str) -> float:
+    if symmetry == "y_continuous":
+        return math.degrees(math.acos(float(np.clip(pred.R[:, 1] @ gt.R[:, 1], -1.0, 1.0))))
+    if symmetry == "box":  # the half-turns about the box axes map the shape onto itself
+        flips = [
+            np.eye(3),
+            np.diag([-1.0, 1.0, -1.0]),
+            np.diag([1.0, -1.0, -1.0]),
+            np.diag([-1.0, -1.0, 1.0]),
+        ]
+        return min(math.degrees(rotation_angle(pred.R @ F, gt.R)) for F in flips)
+    return math.degrees(rotation_angle(pred.R, gt.R))
+
+
+def _iou(pred: Pose9D, gt: Pose9D, symmetry: str) -> float:
+    if symmetry != "y_continuous":
+        return pred.iou(gt)
+    # best over turns about the predicted y axis (the NOCS protocol for y-symmetric objects)
+    return max(
+        Pose9D(pred.R @ so3_exp([0.0, 2.0 * math.pi * k / 36, 0.0]), pred.t, pred.size).iou(gt)
+        for k in range(36)
+    )
+
+
+def _check(result, gt: Pose9D, symmetry: str) -> None:
+    p = result.pose
+    assert _rotation_error_deg(p, gt, symmetry) < ROT_TOL_DEG
+    assert np.linalg.norm(p.t - gt.t) < T_TOL_M
+    np.testing.assert_allclose(p.size, gt.size, rtol=SIZE_RTOL)
+    assert _iou(p, gt, symmetry) >= IOU_MIN
+    assert np.all(p.size > 0.0)
+
+
+@pytest.mark.parametrize("family", ["box", "can", "mug", "laptop", "bottle"])
+def test_known_pose_on_support_plane(library: PriorLibrary, family: str) -> None:
+    prior = library.family_prior(family)
+    rng = np.random.default_rng(["box", "can", "mug", "laptop", "bottle"].index(family))
+    for _ in range(2):
+        gt, pts, up, plane = _upright_scene(prior, rng)
+        result = fit_pose(pts, prior, support_plane_cam=plane)
+        _check(result, gt, prior.symmetry)
+        assert result.mode == "upright_plane"
+        # +y is the support normal
+        assert math.degrees(math.acos(min(1.0, float(result.pose.R[:, 1] @ up)))) < UP_TOL_DEG
+        assert result.loss == pytest.approx(result.obs_to_prior + result.prior_to_obs)
+
+
+@pytest.mark.parametrize("family", ["box", "mug"])
+def test_known_pose_with_up_only(library: PriorLibrary, family: str) -> None:
+    prior = library.family_prior(family)
+    gt, pts, up, _ = _upright_scene(prior, np.random.default_rng(11))
+    result = fit_pose(pts, prior, up_cam=up)
+    _check(result, gt, prior.symmetry)
+    assert math.degrees(math.acos(min(1.0, float(result.pose.R[:, 1] @ up)))) < UP_TOL_DEG
+
+
+def test_free_rotation_recovers_a_bottle(library: PriorLibrary) -> None:
+    # Without a support normal the 24 signed, permuted PCA frames are tried; for a y-round shape, 6.
+    prior = library.family_prior("bottle")
+    gt, pts, _, _ = _upright_scene(prior, np.random.default_rng(5))
+    result = fit_pose(pts, prior)
+    assert result.hypotheses == 6
+    _check(result, gt, prior.symmetry)
+
+
+def test_warm_start_from_perturbed_pose_converges(library: PriorLibrary) -> None:
+    prior = library.family_prior("mug")
+    gt, pts, up, plane = _upright_scene(prior, np.random.default_rng(3))
+    # 8 deg of yaw, 1.5 cm of offset and 12 % of size off: a frame-to-frame change well beyond 30 Hz motion
+    init = Pose9D(
+        so3_exp(up * math.radians(8.0)) @ gt.R, gt.t + np.array([0.015, 0.0, -0.01]), gt.size * 1.12
+    )
+    result = fit_pose(pts, prior, support_plane_cam=plane, init=init)
+    assert result.hypotheses == 1 and result.mode.startswith("warm_")
+    _check(result, gt, prior.symmetry)
+
+
+def test_amodal_box_reaches_hidden_bottom(library: PriorLibrary) -> None:
+    # Only the upper 60 % of a box is seen (an occluder in front): the support plane completes the height.
+    prior = library.family_prior("box")
+    gt, pts, up, plane = _upright_scene(prior, np.random.default_rng(8))
+    heights = pts @ up + plane[3]
+    seen = pts[heights > 0.4 * gt.size[1]]
+    result = fit_pose(seen, prior, support_plane_cam=plane)
+    assert result.pose.size[1] == pytest.approx(gt.size[1], rel=SIZE_RTOL)
+    assert result.pose.iou(gt) >= IOU_MIN
+
+
+def test_equal_shapes_give_equal_poses_for_round_objects(library: PriorLibrary) -> None:
+    # The same can turned about its axis gives the same (canonical) pose: yaw is not observable.
+    prior = library.family_prior("can")
+    gt, pts, _, plane = _upright_scene(prior, np.random.default_rng(21))
+    c = gt.t
+    turn = so3_exp(gt.R[:, 1] * 1.0)
+    pts_turned = (pts - c) @ turn.T + c
+    a = fit_pose(pts, prior, support_plane_cam=plane).pose
+    b = fit_pose(pts_turned, prior, support_plane_cam=plane).pose
+    # 2 deg / 3 mm: two fits on differently sampled noise (the points turn with the object, not the noise)
+    assert math.degrees(rotation_angle(a.R, b.R)) < 2.0
+    assert np.linalg.norm(a.t - b.t) < 0.003
+
+
+def test_canonicalize_symmetry_is_idempotent_and_keeps_the_box() -> None:
+    rng = np.random.default_rng(0)
+    pose = Pose9D(so3_exp(rng.normal(size=3)), np.array([0.05, -0.02, 0.8]), np.array([0.07, 0.2, 0.07]))
+    for sym in ("y_continuous", "box", "y_2fold", "x_continuous", "none"):
+        once = canonicalize_symmetry(pose, sym)
+        twice = canonicalize_symmetry(once, sym)
+        # rounding only: the second call finds the representative already chosen
+        assert twice.allclose(once, 1e-9, 1e-12, 1e-12)
+        if sym in ("box", "y_2fold", "none"):
+            # a half-turn about a box axis maps the box onto itself: same volume overlap
+            assert once.iou(pose) == pytest.approx(1.0, abs=1e-9)
+
+
+def test_bad_input_is_refused(library: PriorLibrary) -> None:
+    prior = library.family_prior("box")
+    good = np.random.default_rng(0).normal(size=(200, 3)) * 0.03 + [0.0, 0.0, 0.8]
+    with pytest.raises(InvalidInputError, match="at least"):
+        fit_pose(good[:10], prior)
+    bad = good.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(InvalidInputError, match="NaN"):
+        fit_pose(bad, prior)
+    with pytest.raises(InvalidInputError, match=r"\(N, 3\)"):
+        fit_pose(good[:, :2], prior)
+    with pytest.raises(InvalidInputError, match="in front"):
+        fit_pose(good * [1.0, 1.0, -1.0], prior)
+    with pytest.raises(InvalidInputError, match="non-zero"):
+        fit_pose(good, prior, up_cam=[0.0, 0.0, 0.0])
+    with pytest.raises(InvalidInputError, match="disagree"):
+        fit_pose(good, prior, up_cam=[0.0, -1.0, 0.0], support_plane_cam=[1.0, 0.0, 0.0, 0.5])
+    with pytest.raises(InvalidInputError, match="ShapePrior"):
+        fit_pose(good, "box")  # type: ignore[arg-type]
+    with pytest.raises(InvalidInputError, match="positive int"):
+        FitConfig(n_points=0)
+    with pytest.raises(InvalidInputError, match="FitStage"):
+        FitStage(obs_points=10, prior_points=0, iterations=1, keep=1)
