@@ -13,6 +13,7 @@ docs/grounding.md describes the method, its thresholds and its measured speed an
 """
 
 from prompose_grasp.perception.grounding.describe import PALETTE, SHAPE_FAMILIES, SIZE_CLASSES
+from prompose_grasp.perception.grounding.dino_sam import GroundingDinoSam2Grounder
 from prompose_grasp.perception.grounding.grounder import Grounder, ground, validate_frame
 from prompose_grasp.perception.grounding.language import ParsedPrompt, parse_prompt
 from prompose_grasp.perception.grounding.score import ScoringWeights
@@ -33,6 +34,7 @@ __all__ = [
     "CandidateAttributes",
     "Grounder",
     "GroundingConfig",
+    "GroundingDinoSam2Grounder",
     "GroundingResult",
     "GroundingTiming",
     "ParsedPrompt",
