@@ -217,7 +217,8 @@ def run(
             full = back_project(depth[::4, ::4], _subsampled(intr, 4))
             plane = ransac_plane(full, rng)
             up = plane[:3]
-            gts, preds = [], {m: [] for m in methods}
+            gts: list[tuple[int, Pose9D, int]] = []
+            preds: dict[str, list[tuple[int, Pose9D]]] = {m: [] for m in methods}
             for obj in meta["objects"]:
                 cat = obj["category"]
                 if cat not in categories:

@@ -147,16 +147,17 @@ class FitConfig:
         lo, hi = self.clip_percentiles
         if not 0.0 <= lo < hi <= 100.0:
             raise InvalidInputError(f"FitConfig.clip_percentiles needs 0 <= low < high <= 100, got {lo, hi}")
-        for name, v in {
+        floats: dict[str, float] = {
             "depth_gate_ratio": self.depth_gate_ratio,
             "huber_m": self.huber_m,
             "visible_cos": self.visible_cos,
             "aspect_weight": self.aspect_weight,
             "step_tol": self.step_tol,
             "damping": self.damping,
-        }.items():
-            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0.0):
-                raise InvalidInputError(f"FitConfig.{name} must be a finite number >= 0, got {v!r}")
+        }
+        for name, fv in floats.items():
+            if not (isinstance(fv, int | float) and math.isfinite(fv) and fv >= 0.0):
+                raise InvalidInputError(f"FitConfig.{name} must be a finite number >= 0, got {fv!r}")
         if self.huber_m <= 0.0:
             raise InvalidInputError(f"FitConfig.huber_m must be > 0 metres, got {self.huber_m}")
 
