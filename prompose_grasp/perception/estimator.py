@@ -116,6 +116,11 @@ def _check_frame(frame: RGBDFrame) -> RGBDFrame:
     return frame
 
 
+def plane_vector(plane: SupportPlane | None) -> np.ndarray | None:
+    """(4,) (nx, ny, nz, d) of a support plane, as `fit_pose` takes it; None when there is no plane."""
+    return None if plane is None else np.append(plane.normal_cam, plane.offset_m)
+
+
 def _ms(t0: float) -> float:
     return 1e3 * (time.perf_counter() - t0)
 
@@ -222,8 +227,9 @@ class ProMPose:
         frame_index: int = 0,
     ) -> Estimate:
         t0 = time.perf_counter()
-        up = None if grounding.support_plane is None else grounding.support_plane.normal_cam
-        fit = fit_pose(points, prior, self.fit_config, up_cam=up, init=init)
+        fit = fit_pose(
+            points, prior, self.fit_config, init=init, support_plane_cam=plane_vector(grounding.support_plane)
+        )
         timings_ms["pose"] = _ms(t0)
         return Estimate(
             pose=fit.pose,

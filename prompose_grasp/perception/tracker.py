@@ -29,7 +29,7 @@ from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import back_project, depth_to_point_map, farthest_point_sampling
 from prompose_grasp.geometry.se3 import invert_T, so3_exp, so3_log
-from prompose_grasp.perception.estimator import Estimate
+from prompose_grasp.perception.estimator import Estimate, plane_vector
 from prompose_grasp.perception.fit import fit_pose
 from prompose_grasp.perception.grounding import SupportPlane
 from prompose_grasp.perception.priors import ShapePrior
@@ -160,8 +160,8 @@ class Tracker:
             np.concatenate(fused),
             self.prior,
             self.estimator.fit_config,
-            up_cam=None if plane is None else plane.normal_cam,
             init=pred,
+            support_plane_cam=plane_vector(plane),
         )
         if not math.isfinite(fit.loss) or math.sqrt(max(fit.loss, 0.0) / 2.0) > cfg.max_rms_m:
             return None
