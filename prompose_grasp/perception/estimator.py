@@ -159,17 +159,27 @@ class ProMPose:
 
     # ------------------------------------------------------------------------------------------------------
 
-    def estimate(self, frame: RGBDFrame, prompt: str, prior: ShapePrior | None = None) -> Estimate:
+    def estimate(
+        self,
+        frame: RGBDFrame,
+        prompt: str,
+        prior: ShapePrior | None = None,
+        mask: np.ndarray | None = None,
+    ) -> Estimate:
         """The best-matching object's estimate in one frame.
 
         Args:
             frame: colour, depth [m] and intrinsics.
             prompt: the object phrase ("the mug left of the bowl").
             prior: a canonical prior to use instead of generating one (e.g. from a CAD mesh).
+            mask: (H, W) bool pixels of the object when you have your own segmentation; grounding is then
+                skipped (the support plane is still found) and the estimate's score is 1.
         Raises:
-            InvalidInputError: bad frame or prompt.
+            InvalidInputError: bad frame, prompt or mask.
             ObjectNotFoundError: nothing in the frame could be the object.
         """
+        if mask is not None:
+            return self._estimate_masked(frame, prompt, mask, prior)
         estimates = self.estimate_all(frame, prompt, prior=prior, max_objects=1)
         if not estimates:
             raise ObjectNotFoundError(f"no object in the frame matches {prompt!r}")
@@ -211,6 +221,34 @@ class ProMPose:
             yield tracker.update(_check_frame(frame))
 
     # ------------------------------------------------------------------------------------------------------
+
+    def _estimate_masked(
+        self, frame: RGBDFrame, prompt: str, mask: np.ndarray, prior: ShapePrior | None
+    ) -> Estimate:
+        t_total = time.perf_counter()
+        prompt = _check_prompt(prompt)
+        frame = _check_frame(frame)
+        m = np.asarray(mask)
+        if m.shape != frame.depth_m.shape or m.dtype != np.bool_:
+            raise InvalidInputError(
+                f"mask must be a {frame.depth_m.shape} bool image, got {m.dtype} {m.shape}"
+            )
+        points = back_project(frame.depth_m, frame.intrinsics, mask=m)
+        if len(points) < self.config.min_points:
+            raise ObjectNotFoundError(
+                f"the mask holds {len(points)} valid depth points; the fit needs {self.config.min_points}"
+            )
+        t0 = time.perf_counter()
+        plane = self.grounder.support_plane(frame.depth_m, frame.intrinsics)
+        grounding = GroundingResult(prompt=prompt, candidates=(), support_plane=plane)
+        ys, xs = np.nonzero(m)
+        candidate = Candidate(m, np.array([xs.min(), ys.min(), xs.max(), ys.max()]), 1.0)
+        grounding_ms = _ms(t0)
+        t0 = time.perf_counter()
+        prior = prior or self._generate_prior(prompt, points, grounding)
+        est = self._fit(candidate, points, prior, grounding, {"grounding": grounding_ms, "prior": _ms(t0)})
+        est.timings_ms["total"] = _ms(t_total)
+        return est
 
     def _generate_prior(self, prompt: str, points: np.ndarray, grounding: GroundingResult) -> ShapePrior:
         up = None if grounding.support_plane is None else grounding.support_plane.normal_cam
