@@ -66,3 +66,20 @@ class NoFeasibleGrasp(PromposeError):
         super().__init__(
             f"no feasible {what} among {self.n_candidates} candidates (rejected: {counts or 'none'})"
         )
+
+
+class NoFeasiblePlace(NoFeasibleGrasp):
+    """Every place pose candidate was rejected; `rejected` counts them per reason."""
+
+    def __init__(self, rejected: dict[str, int], n_candidates: int):
+        super().__init__(rejected, n_candidates, what="place pose")
+
+
+class NoFeasibleMotion(PromposeError):
+    """A pick-and-place motion segment could not be made collision-free and within limits; `segment` names
+    it and `reason` says what was hit."""
+
+    def __init__(self, segment: str, reason: str):
+        self.segment = segment
+        self.reason = reason
+        super().__init__(f"motion segment {segment!r} is not feasible: {reason}")

@@ -1,5 +1,13 @@
-"""Grasp layer: gripper geometry, grasp synthesis, python-fcl collision scene, ranking, place planning."""
+"""Grasp layer: gripper geometry, grasp synthesis, python-fcl collision scene, ranking, place and motion.
 
+>>> from prompose_grasp.grasp import ObjectModel, Plane, plan_grasps  # doctest: +SKIP
+>>> robot = load_robot("ur5e", tcp_offset=ParallelJawGeometry().T_flange_tcp)  # doctest: +SKIP
+>>> target = ObjectModel("mug", estimate.pose.transformed(T_base_cam), mesh_base, family="mug")  # doctest: +SKIP
+>>> plan = plan_grasps(target, robot, "parallel_jaw", obstacles, Plane.horizontal(0.0), points_base)  # doctest: +SKIP
+>>> plan.best.T_base_tcp, plan.best.q, plan.rejected  # doctest: +SKIP
+"""
+
+from prompose_grasp.grasp.batch_ik import ik_branches_batch, ik_nearest_batch
 from prompose_grasp.grasp.grippers import (
     GRIPPER_KINDS,
     GRIPPER_TCP,
@@ -8,12 +16,59 @@ from prompose_grasp.grasp.grippers import (
     SuctionCupGeometry,
     get_gripper,
 )
+from prompose_grasp.grasp.motion import (
+    MotionConfig,
+    MotionSegment,
+    PickPlaceMotion,
+    check_path,
+    plan_pick_place,
+)
+from prompose_grasp.grasp.place import (
+    PalletPattern,
+    PlaceConfig,
+    PlacePose,
+    PlaceTarget,
+    pallet_slots,
+    plan_place,
+)
+from prompose_grasp.grasp.planner import generate_candidates, gripper_hulls, plan_grasps
+from prompose_grasp.grasp.scene import CollisionScene, Hit, voxelize_points
+from prompose_grasp.grasp.synthesis import Candidates, antipodal_grasps, box_grasps, suction_grasps
+from prompose_grasp.grasp.types import Grasp, GraspConfig, GraspPlan, ObjectModel, Plane
 
 __all__ = [
     "GRIPPER_KINDS",
     "GRIPPER_TCP",
+    "Candidates",
+    "CollisionScene",
+    "Grasp",
+    "GraspConfig",
+    "GraspPlan",
     "GripperPart",
+    "Hit",
+    "MotionConfig",
+    "MotionSegment",
+    "ObjectModel",
+    "PalletPattern",
     "ParallelJawGeometry",
+    "PickPlaceMotion",
+    "PlaceConfig",
+    "PlacePose",
+    "PlaceTarget",
+    "Plane",
     "SuctionCupGeometry",
+    "antipodal_grasps",
+    "box_grasps",
+    "check_path",
+    "generate_candidates",
     "get_gripper",
+    "gripper_hulls",
+    "ik_branches_batch",
+    "ik_nearest_batch",
+    "pallet_slots",
+    "plan_grasps",
+    "plan_pick_place",
+    "plan_place",
+    "suction_grasps",
+    "voxelize_points",
 ]

@@ -48,14 +48,14 @@ def _clip_arg(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def ik_branches_batch(
-    spec: URSpec, T_base_flange: np.ndarray, q6_if_singular: float = 0.0, verify: bool = True
+    spec: URSpec, T_base_flange: np.ndarray, q6_if_singular: float | np.ndarray = 0.0, verify: bool = True
 ) -> tuple[np.ndarray, np.ndarray]:
     """All closed-form solutions of N flange poses.
 
     Args:
         spec: the arm.
         T_base_flange: (N, 4, 4) float64 target flange poses in `base` [m].
-        q6_if_singular: q6 [rad] used where the wrist is singular (q6 is free there).
+        q6_if_singular: q6 [rad] used where the wrist is singular (q6 is free there); a scalar or (N,).
         verify: check every branch by forward kinematics (False: only the arccos/arcsin domains are checked,
             for callers that verify the branches they pick, as `ik_nearest_batch` does).
 
@@ -94,9 +94,8 @@ def ik_branches_batch(
     sign = np.where(s5 > 0, 1.0, -1.0)
     xn = np.einsum("nkj,nj->nk", nvec, x6)[:, :, None]
     yn = np.einsum("nkj,nj->nk", nvec, y6)[:, :, None]
-    q6 = np.where(
-        np.abs(s5) < _WRIST_SINGULAR_SIN, q6_if_singular, np.arctan2(-sign * yn, sign * xn)
-    )  # (N, 2, 2)
+    q6_free = np.broadcast_to(np.asarray(q6_if_singular, dtype=np.float64).reshape(-1, 1, 1), (n, 2, 2))
+    q6 = np.where(np.abs(s5) < _WRIST_SINGULAR_SIN, q6_free, np.arctan2(-sign * yn, sign * xn))  # (N, 2, 2)
 
     q1e = np.broadcast_to(q1[:, :, None], (n, 2, 2)).reshape(-1)
     T01_inv = _inv(dh_transforms(q1e, d1, 0.0, alpha[0]))
@@ -143,13 +142,16 @@ def nearest_in_limits_batch(
 
     Args:
         Q: (N, K, 6) branches [rad]; valid: (N, K) bool.
-        q_seed: (6,) configuration to stay near [rad]; lower, upper: (6,) joint limits [rad].
+        q_seed: (6,) configuration to stay near, or (N, 6) one per target [rad]; lower, upper: (6,) joint
+            limits [rad].
 
     Returns:
         (Q_shifted (N, K, 6), ok (N, K) valid and within limits, distance (N, K) Euclidean joint distance to
         the seed, inf where not ok).
     """
     seed = np.asarray(q_seed, dtype=np.float64)
+    if seed.ndim == 2:
+        seed = seed[:, None, :]
     shifted = seed + wrap_to_pi(Q - seed)
     shifted = np.where(shifted > upper, shifted - _TWO_PI, shifted)
     shifted = np.where(shifted < lower, shifted + _TWO_PI, shifted)
@@ -173,7 +175,7 @@ def ik_nearest_batch(
     only at the edge of the workspace).
 
     Args:
-        spec: the arm; T_base_flange: (N, 4, 4) targets; q_seed: (6,) [rad]; lower, upper: (6,) [rad].
+        spec: the arm; T_base_flange: (N, 4, 4) targets; q_seed: (6,) or (N, 6) [rad]; lower, upper: (6,).
 
     Returns:
         (q (N, 6) [rad] (NaN where none), ok (N,) bool, branches (N, 8, 6) all in-limit representatives with
@@ -182,7 +184,7 @@ def ik_nearest_batch(
     T = np.asarray(T_base_flange, dtype=np.float64)
     n = T.shape[0]
     seed = np.asarray(q_seed, dtype=np.float64)
-    Q, valid = _branches_unverified(spec, T, float(seed[5]))
+    Q, valid = _branches_unverified(spec, T, seed[..., 5])
     shifted, ok, dist = nearest_in_limits_batch(Q, valid, seed, lower, upper)
     order = np.argsort(dist, axis=1, kind="stable")
     shifted = np.take_along_axis(shifted, order[:, :, None], axis=1)
@@ -220,5 +222,5 @@ def ik_nearest_batch(
     return q_out, found, shifted
 
 
-def _branches_unverified(spec: URSpec, T: np.ndarray, q6_if_singular: float) -> tuple[np.ndarray, np.ndarray]:
+def _branches_unverified(spec: URSpec, T: np.ndarray, q6_if_singular) -> tuple[np.ndarray, np.ndarray]:
     return ik_branches_batch(spec, T, q6_if_singular, verify=False)

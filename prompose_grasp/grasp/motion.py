@@ -1,0 +1,332 @@
+"""Pick-and-place motion: pre-grasp -> grasp -> lift -> transfer -> pre-place -> place -> retreat, as joint-space
+segments within the limits, collision-checked along the path.
+
+Straight tcp moves (approach, lift, descend, retreat) are joint paths through closed-form IK waypoints on the
+line, each the solution nearest the previous (the same branch); free moves (to the pre-grasp, the transfer)
+are straight lines in joint space, with a detour through points `safe_height_m` above both ends when the
+direct line collides.
+
+Collision checking along a segment. Between two checked samples every point of the arm, the gripper and the
+held object moves less than `resolution_m`: a joint step dq moves a point at most sum_j |dq_j| r_j, where r_j
+bounds the distance of any moving point from joint j's axis (the DH offsets beyond joint j, the tcp offset,
+the gripper's size and the held object's diagonal; `reach_bounds`). With `resolution_m` = 5 mm no point can
+step over a 1 cm obstacle between samples. At each sample the arm's capsules, the gripper's parts (the sim's
+primitives at the segment's opening) and the held object's box (shrunk by `contact_margin_m`, attached to the
+tcp) are checked against the scene with fcl; the target is an obstacle until it is grasped (and the gripper
+may touch it only at the grasp: the approach checks the fingers against it with the pads open).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import fcl
+import numpy as np
+from numpy.typing import ArrayLike
+
+from prompose_grasp.errors import InvalidInputError, NoFeasibleMotion
+from prompose_grasp.geometry.se3 import invert_T
+from prompose_grasp.grasp.batch_ik import ik_nearest_batch
+from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry
+from prompose_grasp.grasp.place import PlacePose
+from prompose_grasp.grasp.planner import _gripper
+from prompose_grasp.grasp.scene import CollisionScene, Hit, _transform
+from prompose_grasp.grasp.types import Grasp, ObjectModel
+from prompose_grasp.robot.interfaces import JointTrajectory
+from prompose_grasp.robot.model import RobotModel
+from prompose_grasp.robot.trajectory import joint_trajectory
+
+__all__ = [
+    "MotionConfig",
+    "MotionSegment",
+    "PickPlaceMotion",
+    "check_path",
+    "plan_pick_place",
+    "reach_bounds",
+]
+
+
+@dataclass(frozen=True)
+class MotionConfig:
+    """Settings of motion planning.
+
+    Attributes:
+        resolution_m: largest motion of any point between two collision-checked samples [m].
+        line_step_m: spacing of IK waypoints on straight tcp moves [m].
+        safe_height_m: height of the detour above the higher end of a blocked free move [m].
+        contact_margin_m: the held object's box is shrunk by this (it rests on its support at the start) [m].
+        speed_scale: fraction of the arm's joint speed limits used to time the segments.
+        max_accel_rad_s2: joint acceleration used to time the segments [rad/s^2].
+    """
+
+    resolution_m: float = 0.005
+    line_step_m: float = 0.02
+    safe_height_m: float = 0.15
+    contact_margin_m: float = 0.003
+    speed_scale: float = 0.5
+    max_accel_rad_s2: float = 2.0
+
+    def __post_init__(self) -> None:
+        for name in ("resolution_m", "line_step_m", "speed_scale", "max_accel_rad_s2"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise InvalidInputError(f"MotionConfig.{name} must be finite and > 0, got {v!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class MotionSegment:
+    """One segment of the motion.
+
+    Attributes:
+        name: "to_pregrasp", "approach", "lift", "transfer", "descend", "retreat".
+        kind: "line" (straight tcp move through the waypoints) or "joint" (straight in joint space).
+        waypoints: (K, 6) joint configurations [rad], start and end included.
+        path: (M, 6) the samples that were collision-checked [rad], start and end included.
+        trajectory: the waypoints timed as synchronised rest-to-rest joint moves at the control period.
+        holding: the object is held during the segment.
+        opening_m: the jaw opening during the segment [m].
+    """
+
+    name: str
+    kind: str
+    waypoints: np.ndarray
+    path: np.ndarray
+    trajectory: JointTrajectory
+    holding: bool
+    opening_m: float
+
+
+@dataclass(frozen=True, eq=False)
+class PickPlaceMotion:
+    """The segments in execution order, and the poses they connect."""
+
+    segments: tuple[MotionSegment, ...]
+    grasp: Grasp
+    place: PlacePose
+
+    def segment(self, name: str) -> MotionSegment:
+        for s in self.segments:
+            if s.name == name:
+                return s
+        raise KeyError(name)
+
+
+def reach_bounds(robot: RobotModel, tool_extent_m: float) -> np.ndarray:
+    """(6,) r_j [m]: an upper bound on the distance from joint j's axis of any point moved by joint j.
+
+    Sum of the |a_i| and |d_i| of the DH rows beyond joint j (the chain from the joint to the flange), plus
+    `tool_extent_m` (the farthest point of the tool and the held object from the flange) and the largest link
+    capsule radius."""
+    spec = robot.spec
+    a, d = np.abs(spec.a_m), np.abs(spec.d_m)
+    radius = max(spec.capsule_radius_m)
+    return np.array([float(np.sum(a[j:]) + np.sum(d[j + 1 :])) + tool_extent_m + radius for j in range(6)])
+
+
+def _samples(q0: np.ndarray, q1: np.ndarray, r: np.ndarray, resolution_m: float) -> np.ndarray:
+    """(M, 6) samples of the joint line q0 -> q1, including both, close enough that no point moves more than
+    `resolution_m` between neighbours."""
+    sweep = float(np.abs(q1 - q0) @ r)
+    m = max(1, math.ceil(sweep / resolution_m))
+    s = np.linspace(0.0, 1.0, m + 1)[:, None]
+    return q0 + s * (q1 - q0)
+
+
+class _Mover:
+    """The gripper's parts (and a held box) as fcl objects that follow the tcp."""
+
+    def __init__(
+        self, gripper, opening_m: float, held: ObjectModel | None, T_tcp_obj: np.ndarray | None, margin
+    ):
+        self.parts = []
+        for part in gripper.parts(opening_m if isinstance(gripper, ParallelJawGeometry) else None):
+            if part.shape == "box":
+                geom = fcl.Box(*(2.0 * np.asarray(part.size_m)))
+            else:
+                geom = fcl.Cylinder(part.size_m[0], 2.0 * part.size_m[1])
+            self.parts.append((part.name, fcl.CollisionObject(geom, fcl.Transform()), part.T_tcp_part))
+        if held is not None:
+            half = np.maximum(held.pose.size / 2.0 - margin, 1e-4)
+            geom = fcl.Box(*(2.0 * half))
+            self.parts.append(("held object", fcl.CollisionObject(geom, fcl.Transform()), T_tcp_obj))
+
+    def at(self, T_base_tcp: np.ndarray) -> list[tuple[str, fcl.CollisionObject]]:
+        out = []
+        for name, obj, T_tcp_part in self.parts:
+            T = T_base_tcp @ T_tcp_part
+            obj.setTransform(_transform(T[:3, :3], T[:3, 3]))
+            out.append((name, obj))
+        return out
+
+
+def check_path(
+    robot: RobotModel,
+    scene: CollisionScene,
+    Q: np.ndarray,
+    gripper: ParallelJawGeometry | SuctionCupGeometry,
+    opening_m: float,
+    include_target: bool,
+    held: ObjectModel | None = None,
+    T_tcp_obj: np.ndarray | None = None,
+    config: MotionConfig | None = None,
+) -> tuple[np.ndarray, Hit | None]:
+    """Collision-check the joint path through waypoints Q (K, 6) at the resolution of `config`.
+
+    Returns:
+        (samples (M, 6) checked [rad], the first `Hit` or None). Samples outside the joint limits are reported
+        as Hit("limits", ...).
+    """
+    cfg = config or MotionConfig()
+    Q = np.asarray(Q, dtype=np.float64)
+    lower, upper = robot.joint_limits
+    tool = float(np.linalg.norm(gripper.T_flange_tcp[:3, 3])) + 0.1  # tcp offset + the gripper's own size
+    if held is not None:
+        tool += float(np.linalg.norm(held.pose.size))
+    r = reach_bounds(robot, tool)
+    mover = _Mover(gripper, opening_m, held, T_tcp_obj, cfg.contact_margin_m)
+    samples = [Q[0][None]]
+    for q0, q1 in zip(Q[:-1], Q[1:]):
+        samples.append(_samples(q0, q1, r, cfg.resolution_m)[1:])
+    S = np.vstack(samples)
+    for q in S:
+        if np.any(q < lower - 1e-12) or np.any(q > upper + 1e-12):
+            return S, Hit("limits", f"joint limits at {np.round(q, 3).tolist()}")
+        T_tcp = robot.fk(q) @ gripper.T_flange_tcp
+        hit = scene.arm_hit(robot, q, include_target=include_target, extra=mover.at(T_tcp))
+        if hit is not None:
+            return S, hit
+    return S, None
+
+
+def _line(robot, T_from, T_to, q_start, T_tcp_flange, step_m) -> np.ndarray | None:
+    """Joint waypoints along the straight tcp line T_from -> T_to (same orientation, or interpolated
+    linearly in position only when they share it), each nearest the previous; None when IK fails."""
+    dist = float(np.linalg.norm(T_to[:3, 3] - T_from[:3, 3]))
+    k = max(1, math.ceil(dist / step_m))
+    lower, upper = robot.joint_limits
+    Q = [np.asarray(q_start, dtype=np.float64)]
+    for s in np.linspace(0.0, 1.0, k + 1)[1:]:
+        T = T_to.copy()
+        T[:3, 3] = T_from[:3, 3] + s * (T_to[:3, 3] - T_from[:3, 3])
+        q, ok, _ = ik_nearest_batch(robot.spec, (T @ T_tcp_flange)[None], Q[-1], lower, upper)
+        if not ok[0] or np.linalg.norm(q[0] - Q[-1]) > 1.0:  # a branch jump, not a small line step
+            return None
+        Q.append(q[0])
+    return np.array(Q)
+
+
+def _timed(robot: RobotModel, W: np.ndarray, cfg: MotionConfig) -> JointTrajectory:
+    vmax = robot.max_joint_speed * cfg.speed_scale
+    t_all, q_all, t0 = [], [], 0.0
+    for q0, q1 in zip(W[:-1], W[1:]):
+        seg = joint_trajectory(q0, q1, vmax, cfg.max_accel_rad_s2)
+        t_all.append(seg.t_s + t0)
+        q_all.append(seg.q)
+        t0 = float(t_all[-1][-1])
+    if not t_all:
+        return JointTrajectory(t_s=np.array([0.002]), q=W[-1:])
+    return JointTrajectory(t_s=np.concatenate(t_all), q=np.vstack(q_all))
+
+
+def plan_pick_place(
+    robot: RobotModel,
+    grasp: Grasp,
+    place: PlacePose,
+    obj: ObjectModel,
+    scene_pick: CollisionScene,
+    scene_place: CollisionScene | None = None,
+    gripper: ParallelJawGeometry | SuctionCupGeometry | str = "parallel_jaw",
+    q_start: ArrayLike | None = None,
+    config: MotionConfig | None = None,
+) -> PickPlaceMotion:
+    """The collision-checked segments of one pick and place.
+
+    Args:
+        robot: the arm; grasp: from `plan_grasps` (with `q`); place: from `plan_place`.
+        obj: the object picked (as estimated; its box is carried).
+        scene_pick: the scene with the object as its target (the object is an obstacle until grasped).
+        scene_place: the scene without the object (for the moves while it is held); `scene_pick` without
+            its target if None.
+        gripper: the gripper.
+        q_start: (6,) the arm's configuration now [rad]; the segment "to_pregrasp" is added when given.
+        config: `MotionConfig`.
+
+    Raises:
+        NoFeasibleMotion: a segment has no IK along its line or collides (its name and what it hit).
+    """
+    cfg = config or MotionConfig()
+    grip = _gripper(gripper)
+    if grasp.q is None:
+        raise InvalidInputError("grasp.q is None: plan the grasp with plan_grasps (it sets q)")
+    T_tcp_flange = invert_T(grip.T_flange_tcp)
+    T_tcp_obj = invert_T(grasp.T_base_tcp) @ obj.pose.to_matrix()
+    held_scene = scene_place or scene_pick
+    opening = grasp.opening_m
+    segments: list[MotionSegment] = []
+    is_suction = isinstance(grip, SuctionCupGeometry)
+
+    def add(name, kind, W, holding, include_target, scene):
+        if W is None:
+            raise NoFeasibleMotion(name, "no IK solution along the straight tcp line on the same branch")
+        held = obj if holding else None
+        S, hit = check_path(robot, scene, W, grip, opening, include_target, held, T_tcp_obj, cfg)
+        if hit is not None:
+            raise NoFeasibleMotion(name, f"{hit.reason}: {hit.name}")
+        segments.append(MotionSegment(name, kind, W, S, _timed(robot, W, cfg), holding, opening))
+        return W[-1]
+
+    # Approach: from the pre-grasp down the line to the grasp (walked backwards from the grasp's q, so the
+    # branch is the grasp's).
+    W_back = _line(robot, grasp.T_base_tcp, grasp.T_base_pregrasp, grasp.q, T_tcp_flange, cfg.line_step_m)
+    W_approach = None if W_back is None else W_back[::-1]
+    if q_start is not None and W_approach is not None:
+        q0 = robot._q(q_start, "q_start")
+        W_to = _free(
+            robot, scene_pick, q0, W_approach[0], grip, opening, None, T_tcp_obj, cfg, T_tcp_flange, False
+        )
+        add("to_pregrasp", "joint", W_to, False, True, scene_pick)
+    # The suction cup ends in contact with the target's face; the jaws stay clear of it until they close.
+    add("approach", "line", W_approach, False, not is_suction, scene_pick)
+    q = add(
+        "lift",
+        "line",
+        _line(robot, grasp.T_base_tcp, grasp.T_base_retreat, grasp.q, T_tcp_flange, cfg.line_step_m),
+        True,
+        False,
+        held_scene,
+    )
+    W_pre = _line(robot, place.T_base_tcp, place.T_base_preplace, place.q, T_tcp_flange, cfg.line_step_m)
+    if W_pre is None:
+        raise NoFeasibleMotion("descend", "no IK solution along the straight line above the place pose")
+    W_transfer = _free(
+        robot, held_scene, q, W_pre[-1], grip, opening, obj, T_tcp_obj, cfg, T_tcp_flange, True
+    )
+    add("transfer", "joint", W_transfer, True, False, held_scene)
+    add("descend", "line", W_pre[::-1], True, False, held_scene)
+    W_ret = _line(robot, place.T_base_tcp, place.T_base_retreat, place.q, T_tcp_flange, cfg.line_step_m)
+    add("retreat", "line", W_ret, False, False, held_scene)
+    return PickPlaceMotion(tuple(segments), grasp, place)
+
+
+def _free(robot, scene, q0, q1, grip, opening, held, T_tcp_obj, cfg, T_tcp_flange, holding) -> np.ndarray:
+    """A free move: the joint line q0 -> q1, or a detour through points above both ends when it collides."""
+    W = np.array([q0, q1])
+    _, hit = check_path(
+        robot, scene, W, grip, opening, not holding, held if holding else None, T_tcp_obj, cfg
+    )
+    if hit is None:
+        return W
+    T0 = robot.fk(q0) @ grip.T_flange_tcp
+    T1 = robot.fk(q1) @ grip.T_flange_tcp
+    up = np.array([0.0, 0.0, 1.0]) if scene.support is None else np.asarray(scene.support.normal)
+    top = max(float(T0[:3, 3] @ up), float(T1[:3, 3] @ up)) + cfg.safe_height_m
+    A, B = T0.copy(), T1.copy()
+    A[:3, 3] += (top - float(T0[:3, 3] @ up)) * up
+    B[:3, 3] += (top - float(T1[:3, 3] @ up)) * up
+    up0 = _line(robot, T0, A, q0, T_tcp_flange, cfg.line_step_m)
+    down1 = _line(robot, T1, B, q1, T_tcp_flange, cfg.line_step_m)
+    if up0 is None or down1 is None:
+        name = "transfer" if holding else "to_pregrasp"
+        raise NoFeasibleMotion(name, f"blocked ({hit.reason}: {hit.name}), no detour above it is reachable")
+    return np.vstack([up0, down1[::-1]])

@@ -1,0 +1,303 @@
+"""`plan_grasps`: candidates -> analytic filters -> batched IK -> fcl gripper check -> ranking -> arm check.
+
+Stages, each on the survivors of the one before (a candidate counts once, for the first check it fails):
+
+1. synthesis (`synthesis.py`): box, antipodal and suction candidates, capped at `max_candidates` (best
+   quality first); generators already mark "stroke" (too wide for the jaws), "payload" (too heavy for the
+   cup) and "suction_not_flat" (the cup would not seal on the mesh);
+2. "support": the gripper, swept from the pre-grasp to the grasp, dips below the support plane plus
+   `support_clearance_m` (exact for the gripper's tcp-aligned hull boxes; numpy on all candidates at once);
+3. "ik": no closed-form solution within the joint limits (`batch_ik.ik_nearest_batch`, all candidates in one
+   numpy pass; the branch nearest `q_seed`);
+4. "collision_object" / "collision_fixture" / "collision_points" / "collision_target": the swept gripper
+   hull boxes (palm, each finger at the opening; or stem and cup) touch another object, a fixture, the
+   voxelised observed points, or (mesh grasps only) the target away from the contacts; one fcl broadphase
+   query for all candidates;
+5. ranking by score = quality - `joint_distance_weight` x joint distance from the seed [rad];
+6. "ik_approach": the pre-grasp or the retreat pose has no solution on the grasp's branch (within 1 rad of
+   it); "arm_collision": the arm's link capsules touch the scene at every in-limit branch of the grasp (the
+   one nearest the seed is tried first). This runs in rank order, in chunks, until `max_grasps` grasps
+   passed (over all of them with `exhaustive`).
+
+Raises `NoFeasibleGrasp` with the per-reason counts when nothing passes.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import Counter
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from prompose_grasp.errors import InvalidInputError, NoFeasibleGrasp
+from prompose_grasp.geometry.se3 import invert_T
+from prompose_grasp.grasp.batch_ik import ik_nearest_batch
+from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry, get_gripper
+from prompose_grasp.grasp.scene import CollisionScene
+from prompose_grasp.grasp.synthesis import Candidates, antipodal_grasps, box_grasps, suction_grasps
+from prompose_grasp.grasp.types import Grasp, GraspConfig, GraspPlan, ObjectModel, Plane
+from prompose_grasp.robot.model import RobotModel
+
+__all__ = ["generate_candidates", "gripper_hulls", "plan_grasps"]
+
+log = logging.getLogger(__name__)
+
+#: Two IK solutions are on the same branch, for the pre-grasp and retreat poses, within this joint distance
+#: [rad]: a 10 cm tcp move changes no joint by more than ~0.5 rad away from singularities.
+_SAME_BRANCH_RAD = 1.0
+
+
+def _gripper(gripper) -> ParallelJawGeometry | SuctionCupGeometry:
+    if isinstance(gripper, str):
+        return get_gripper(gripper)
+    if not isinstance(gripper, (ParallelJawGeometry, SuctionCupGeometry)):
+        raise InvalidInputError(
+            "gripper must be 'parallel_jaw', 'suction', a ParallelJawGeometry or a SuctionCupGeometry, "
+            f"got {type(gripper).__name__}"
+        )
+    return gripper
+
+
+def generate_candidates(
+    target: ObjectModel,
+    gripper: ParallelJawGeometry | SuctionCupGeometry,
+    config: GraspConfig,
+    support: Plane | None = None,
+) -> Candidates:
+    """All candidates of the gripper's kind, capped at `config.max_candidates` (unrejected, best first)."""
+    if isinstance(gripper, ParallelJawGeometry):
+        cands = Candidates.concat(
+            [box_grasps(target, gripper, config, support), antipodal_grasps(target, gripper, config, support)]
+        )
+    else:
+        cands = suction_grasps(target, gripper, config, support)
+    if len(cands) > config.max_candidates:
+        order = np.lexsort((-cands.quality, cands.pre_rejected != ""))
+        cands = cands.take(order[: config.max_candidates])
+    return cands
+
+
+def gripper_hulls(
+    gripper: ParallelJawGeometry | SuctionCupGeometry, opening_m: np.ndarray, sweep_m: float
+) -> tuple[list[tuple[float, float, float]], np.ndarray]:
+    """The gripper's hull boxes swept `sweep_m` back along the approach, per candidate, in the tcp frame.
+
+    Returns:
+        (halves, centres): K half extents (x, y, z) [m], and (N, K, 3) box centres in the tcp frame [m]
+        (the finger boxes move with `opening_m` (N,)).
+    """
+    hulls = gripper.hull_boxes(0.0 if isinstance(gripper, ParallelJawGeometry) else None)
+    halves, centres = [], []
+    for name, (lo, hi) in hulls.items():
+        lo, hi = lo.copy(), hi.copy()
+        lo[2] -= sweep_m  # swept back along -z (towards the pre-grasp)
+        half = (hi - lo) / 2.0
+        c = np.broadcast_to((hi + lo) / 2.0, (len(opening_m), 3)).copy()
+        if name == "finger_left":
+            c[:, 1] += opening_m / 2.0
+        elif name == "finger_right":
+            c[:, 1] -= opening_m / 2.0
+        halves.append((float(half[0]), float(half[1]), float(half[2])))
+        centres.append(c)
+    return halves, np.stack(centres, axis=1)
+
+
+def _lowest_heights(
+    T: np.ndarray, halves: list[tuple[float, float, float]], centres_tcp: np.ndarray, support: Plane
+) -> np.ndarray:
+    """(N,) lowest height above the support of any hull box corner (exact for boxes) [m]."""
+    n = support.normal
+    # Height of a box = height of its centre - sum_k |n . axis_k| half_k; the axes are the tcp axes.
+    axes_dot = np.abs(np.einsum("j,njk->nk", n, T[:, :3, :3]))  # (N, 3)
+    low = np.full(T.shape[0], np.inf)
+    for k, half in enumerate(halves):
+        c_base = np.einsum("nij,nj->ni", T[:, :3, :3], centres_tcp[:, k]) + T[:, :3, 3]
+        h = support.height(c_base) - axes_dot @ np.asarray(half)
+        low = np.minimum(low, h)
+    return low
+
+
+def plan_grasps(
+    target: ObjectModel,
+    robot: RobotModel,
+    gripper: ParallelJawGeometry | SuctionCupGeometry | str = "parallel_jaw",
+    obstacles: Sequence[ObjectModel] = (),
+    support: Plane | None = None,
+    points_base: ArrayLike | None = None,
+    q_seed: ArrayLike | None = None,
+    config: GraspConfig | None = None,
+    scene: CollisionScene | None = None,
+) -> GraspPlan:
+    """Feasible grasps of `target`, best first.
+
+    Args:
+        target: the object to pick (`ObjectModel` in `base`: 9-DoF box, optional mesh, family, mass).
+        robot: the arm (`load_robot(name, tcp_offset=gripper.T_flange_tcp)`); IK uses the gripper's tcp.
+        gripper: "parallel_jaw", "suction", or a geometry.
+        obstacles: other objects and fixtures in `base`.
+        support: the plane the target stands on, in `base`.
+        points_base: (N, 3) observed points in `base` [m] (the target's and the support's are dropped).
+        q_seed: (6,) current joint configuration [rad]; zeros if None.
+        config: `GraspConfig`.
+        scene: a prebuilt `CollisionScene` for this target (then obstacles/support/points are not used).
+
+    Returns:
+        `GraspPlan` with `grasps` best first and per-reason rejection counts.
+
+    Raises:
+        NoFeasibleGrasp: every candidate was rejected (its `rejected` holds the counts).
+        InvalidInputError: malformed inputs.
+    """
+    t0 = time.perf_counter()
+    cfg = config or GraspConfig()
+    grip = _gripper(gripper)
+    if not isinstance(target, ObjectModel):
+        raise InvalidInputError(f"target must be an ObjectModel in base, got {type(target).__name__}")
+    if not isinstance(robot, RobotModel):
+        raise InvalidInputError(f"robot must be a RobotModel (load_robot(...)), got {type(robot).__name__}")
+    seed = np.zeros(6) if q_seed is None else robot._q(q_seed, "q_seed")
+    if scene is None:
+        scene = CollisionScene(
+            obstacles,
+            support,
+            points_base,
+            target,
+            voxel_size_m=cfg.voxel_size_m,
+            target_margin_m=cfg.target_margin_m,
+            support_band_m=cfg.support_band_m,
+        )
+    support = scene.support
+    timings: dict[str, float] = {"scene": (time.perf_counter() - t0) * 1e3}
+
+    t = time.perf_counter()
+    cands = generate_candidates(target, grip, cfg, support)
+    n = len(cands)
+    timings["generate"] = (time.perf_counter() - t) * 1e3
+    rejected: Counter[str] = Counter()
+    status = np.array(cands.pre_rejected, dtype=object) if n else np.zeros(0, dtype=object)
+
+    # Support plane (analytic, exact for the hull boxes).
+    t = time.perf_counter()
+    halves, centres_tcp = gripper_hulls(grip, cands.opening_m, cfg.approach_offset_m)
+    if support is not None and n:
+        low = _lowest_heights(cands.T_base_tcp, halves, centres_tcp, support)
+        status[(status == "") & (low < cfg.support_clearance_m)] = "support"
+    timings["filters"] = (time.perf_counter() - t) * 1e3
+
+    # IK, batched.
+    t = time.perf_counter()
+    T_tcp_flange = invert_T(grip.T_flange_tcp)
+    alive = np.flatnonzero(status == "")
+    lower, upper = robot.joint_limits
+    q_all = np.full((n, 6), np.nan)
+    branches = np.full((n, 8, 6), np.nan)
+    if alive.size:
+        q, ok, br = ik_nearest_batch(robot.spec, cands.T_base_tcp[alive] @ T_tcp_flange, seed, lower, upper)
+        q_all[alive], branches[alive] = q, br
+        status[alive[~ok]] = "ik"
+    timings["ik"] = (time.perf_counter() - t) * 1e3
+
+    # Gripper vs scene, one broadphase query for all survivors.
+    t = time.perf_counter()
+    alive = np.flatnonzero(status == "")
+    if alive.size:
+        T = cands.T_base_tcp[alive]
+        centres = np.einsum("nij,nkj->nki", T[:, :3, :3], centres_tcp[alive]) + T[:, None, :3, 3]
+        hits = scene.boxes_first_hits(T[:, :3, :3], centres, halves, include_target=cands.check_target[alive])
+        for i, hit in zip(alive, hits):
+            if hit is not None:
+                status[i] = hit.reason
+    timings["gripper_collision"] = (time.perf_counter() - t) * 1e3
+
+    # Rank, then the arm (and the approach / retreat IK) in rank order.
+    t = time.perf_counter()
+    alive = np.flatnonzero(status == "")
+    dist = np.linalg.norm(q_all[alive] - seed, axis=1) if alive.size else np.zeros(0)
+    score = cands.quality[alive] - cfg.joint_distance_weight * dist
+    order = alive[np.argsort(-score, kind="stable")]
+    score_of = dict(zip(alive.tolist(), score.tolist()))
+    up = np.array([0.0, 0.0, 1.0]) if support is None else support.normal
+    grasps: list[Grasp] = []
+    n_unchecked = 0
+    chunk = max(4, cfg.max_grasps)
+    for start in range(0, len(order), chunk):
+        if len(grasps) >= cfg.max_grasps and not cfg.exhaustive:
+            n_unchecked += len(order) - start
+            break
+        idx = order[start : start + chunk]
+        T_grasp = cands.T_base_tcp[idx]
+        T_pre = T_grasp.copy()
+        T_pre[:, :3, 3] -= cfg.approach_offset_m * T_grasp[:, :3, 2]
+        T_ret = T_grasp.copy()
+        T_ret[:, :3, 3] += cfg.lift_m * up
+        # Pre-grasp and retreat on the grasp's branch: the solution nearest the grasp's configuration.
+        seeds = np.vstack([q_all[idx], q_all[idx]])
+        q_near, ok_near, _ = ik_nearest_batch(
+            robot.spec, np.concatenate([T_pre, T_ret]) @ T_tcp_flange, seeds, lower, upper
+        )
+        near_ok = ok_near & (
+            np.linalg.norm(np.nan_to_num(q_near - seeds, nan=np.inf), axis=1) <= _SAME_BRANCH_RAD
+        )
+        m = len(idx)
+        for r, i in enumerate(idx):
+            if len(grasps) >= cfg.max_grasps and not cfg.exhaustive:
+                n_unchecked += 1
+                continue
+            if not (near_ok[r] and near_ok[m + r]):
+                status[i] = "ik_approach"
+                continue
+            q_ok = None
+            for q in _branch_order(q_all[i], branches[i]):
+                if q is not q_all[i] and not _verified(robot, q, T_grasp[r] @ T_tcp_flange):
+                    continue
+                if scene.arm_hit(robot, q) is None:
+                    q_ok = q
+                    break
+            if q_ok is None:
+                status[i] = "arm_collision"
+                continue
+            if len(grasps) < cfg.max_grasps:
+                grasps.append(
+                    Grasp(
+                        T_base_tcp=T_grasp[r],
+                        T_base_pregrasp=T_pre[r],
+                        T_base_retreat=T_ret[r],
+                        opening_m=float(cands.opening_m[i]),
+                        width_m=float(cands.width_m[i]),
+                        quality=float(cands.quality[i]),
+                        reason=cands.reason[i],
+                        gripper=grip.kind,
+                        method=str(cands.method[i]),
+                        contacts=cands.contacts[i],
+                        q=q_ok,
+                        score=float(score_of[int(i)]),
+                    )
+                )
+    timings["rank_and_arm"] = (time.perf_counter() - t) * 1e3
+    timings["total"] = (time.perf_counter() - t0) * 1e3
+    rejected.update(s for s in status if s)
+    if not grasps:
+        raise NoFeasibleGrasp(dict(rejected), n)
+    log.debug("plan_grasps: %d grasps of %d candidates; rejected %s", len(grasps), n, dict(rejected))
+    return GraspPlan(tuple(grasps), dict(rejected), n, n_unchecked, timings)
+
+
+def _branch_order(q_first: np.ndarray, branches: np.ndarray) -> list[np.ndarray]:
+    """The picked solution first, then the other in-limit branches nearest the seed first."""
+    out = [q_first]
+    for q in branches:
+        # Same configuration up to rounding (the branches come from the same arithmetic).
+        if np.all(np.isfinite(q)) and float(np.max(np.abs(q - q_first))) > 1e-9:
+            out.append(q)
+    return out
+
+
+def _verified(robot: RobotModel, q: np.ndarray, T_base_flange: np.ndarray) -> bool:
+    T = robot.fk(q)
+    # Same acceptance as the closed-form branches of the robot layer (exact solutions land at ~1e-15).
+    return bool(np.linalg.norm(T[:3, 3] - T_base_flange[:3, 3]) <= 1e-7) and bool(
+        np.linalg.norm(T[:3, :3] - T_base_flange[:3, :3]) <= 1e-7
+    )

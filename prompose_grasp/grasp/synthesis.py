@@ -1,0 +1,482 @@
+"""Grasp candidates: analytic grasps on the 9-DoF box, antipodal pairs on the scaled mesh, suction on faces.
+
+Every generator returns a `Candidates` batch (numpy arrays, one row per candidate) in `base`:
+`T_base_tcp` (N, 4, 4) with tcp +z the approach and tcp y the closing direction, the opening to pre-shape to,
+the object width at the contacts, the contacts, a quality in [0, 1] and a reason in words.
+
+Box grasps (parallel jaw). For each box axis i narrower than the stroke (less twice the clearance) the jaws
+close along i; the approach runs along each other axis j, from either side, tilted by `approach_tilts_deg`
+towards the third axis. The tcp (the pad centre) goes as deep towards the box centre as the palm allows
+(palm at `palm_clearance_m` from the box's extent along the approach), slid along the face to `n_slide`
+positions. Quality: 0.4 top-down (approach against the support normal), 0.3 centring (distance of the
+closing line from the centre of mass), 0.2 depth (pad overlap), 0.1 width margin.
+
+Antipodal grasps (parallel jaw, mesh). Surface points with normals are sampled; a pair (p1, p2) is a grasp
+when the line p1 -> p2 lies inside both friction cones (half angle atan(mu)) and the pair is narrower than the
+stroke. The object's family restricts where: mugs by the rim or the body, bowls by the rim, bottles (cans,
+jars) by the body (rim: both contacts in the top band of the object and a horizontal closing line; body:
+contacts in the middle band, closing line horizontal). The approach is perpendicular to the closing line, the
+one nearest top-down, rotated about the closing line by `antipodal_approaches_deg`. Quality: 0.35 friction
+margin, 0.3 top-down, 0.25 centring, 0.1 width margin.
+
+Suction grasps. On each face of the box whose normal does not point down, on a grid of points where the whole
+cup fits, nearest the projection of the centre of mass first; with a mesh, the face must be flat under the
+cup (mesh samples within 3 mm of the face plane, normals within the cup's seal angle, covering the cup's
+rim). Quality: 0.5 top-down, 0.4 offset from the centre of mass (the moment on the cup), 0.1 face size.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry
+from prompose_grasp.grasp.types import GraspConfig, ObjectModel, Plane
+
+__all__ = ["Candidates", "antipodal_grasps", "box_grasps", "family_regions", "suction_grasps"]
+
+_AXES = "xyz"
+
+#: Where each family may be grasped by the jaws ("rim", "body"); families not listed: anywhere.
+FAMILY_REGIONS: dict[str, tuple[str, ...]] = {
+    "mug": ("rim", "body"),
+    "cup": ("rim", "body"),
+    "bowl": ("rim",),
+    "bottle": ("body",),
+    "can": ("body",),
+    "jar": ("body",),
+}
+
+#: A closing line counts as horizontal within this angle of the object's horizontal plane [deg].
+_HORIZONTAL_DEG = 25.0
+#: The rim band is the top 15 % of the object's height, at least 15 mm; the body band the middle 70 %.
+_RIM_FRACTION, _RIM_MIN_M, _BODY_FRACTION = 0.15, 0.015, 0.70
+
+
+def family_regions(family: str) -> tuple[str, ...]:
+    """Regions a family may be grasped in ("rim", "body"), or () for anywhere."""
+    return FAMILY_REGIONS.get(family, ())
+
+
+@dataclass
+class Candidates:
+    """A batch of grasp candidates (rows), in `base`.
+
+    Attributes:
+        T_base_tcp: (N, 4, 4) tcp poses.
+        opening_m: (N,) pad distance to open to [m] (0 for suction).
+        width_m: (N,) object width at the contacts [m] (0 for suction).
+        contacts: (N, 2, 3) contact points [m] (suction: the cup centre twice).
+        quality: (N,) in [0, 1].
+        method: (N,) "box" / "antipodal" / "suction".
+        reason: N strings.
+        check_target: (N,) bool: collide the gripper with the target too (mesh grasps: the fingers may meet
+            the mesh elsewhere; box grasps keep clear of the box by construction).
+        pre_rejected: (N,) "" or the reason a generator already knows the candidate fails ("stroke", ...).
+    """
+
+    T_base_tcp: np.ndarray
+    opening_m: np.ndarray
+    width_m: np.ndarray
+    contacts: np.ndarray
+    quality: np.ndarray
+    method: np.ndarray
+    reason: list[str] = field(default_factory=list)
+    check_target: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    pre_rejected: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=object))
+
+    def __len__(self) -> int:
+        return int(self.T_base_tcp.shape[0])
+
+    @classmethod
+    def empty(cls) -> Candidates:
+        return cls(
+            np.zeros((0, 4, 4)),
+            np.zeros(0),
+            np.zeros(0),
+            np.zeros((0, 2, 3)),
+            np.zeros(0),
+            np.zeros(0, dtype=object),
+            [],
+            np.zeros(0, dtype=bool),
+            np.zeros(0, dtype=object),
+        )
+
+    @classmethod
+    def concat(cls, parts: list[Candidates]) -> Candidates:
+        parts = [p for p in parts if len(p)]
+        if not parts:
+            return cls.empty()
+        return cls(
+            np.concatenate([p.T_base_tcp for p in parts]),
+            np.concatenate([p.opening_m for p in parts]),
+            np.concatenate([p.width_m for p in parts]),
+            np.concatenate([p.contacts for p in parts]),
+            np.concatenate([p.quality for p in parts]),
+            np.concatenate([p.method for p in parts]),
+            [r for p in parts for r in p.reason],
+            np.concatenate([p.check_target for p in parts]),
+            np.concatenate([p.pre_rejected for p in parts]),
+        )
+
+    def take(self, idx: np.ndarray) -> Candidates:
+        idx = np.asarray(idx, dtype=np.int64)
+        return Candidates(
+            self.T_base_tcp[idx],
+            self.opening_m[idx],
+            self.width_m[idx],
+            self.contacts[idx],
+            self.quality[idx],
+            self.method[idx],
+            [self.reason[i] for i in idx],
+            self.check_target[idx],
+            self.pre_rejected[idx],
+        )
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product of (..., 3) arrays (np.cross costs ~50 us a call in its axis handling; this ~2 us)."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    return np.stack(
+        [
+            a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+            a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+            a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0],
+        ],
+        axis=-1,
+    )
+
+
+def _frames(approach: np.ndarray, closing: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotations with columns x = y cross z, y = closing, z = approach (both (N, 3), orthonormal)."""
+    x = cross(closing, approach)
+    return np.stack([x, closing, approach], axis=-1)
+
+
+def _T(R: np.ndarray, p: np.ndarray) -> np.ndarray:
+    T = np.zeros((R.shape[0], 4, 4))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = p
+    T[:, 3, 3] = 1.0
+    return T
+
+
+def _up(support: Plane | None) -> np.ndarray:
+    return np.array([0.0, 0.0, 1.0]) if support is None else np.asarray(support.normal)
+
+
+def box_grasps(
+    target: ObjectModel, gripper: ParallelJawGeometry, config: GraspConfig, support: Plane | None = None
+) -> Candidates:
+    """Analytic parallel-jaw grasps on the target's 9-DoF box (see the module docstring)."""
+    R, c, size = target.pose.R, target.pose.t, target.pose.size
+    com = target.centre_of_mass
+    up = _up(support)
+    pad_w, _, pad_l = gripper.pad_size_m
+    reach = gripper.palm_to_tcp_m - config.palm_clearance_m  # deepest the box may reach above the tcp
+    rows_R, rows_p, rows_open, rows_w, rows_q, rows_c, reasons, pre = [], [], [], [], [], [], [], []
+    max_dim = float(np.max(size))
+    flips = np.array([1.0, -1.0])
+    for i in range(3):
+        width = float(size[i])
+        opening = width + 2.0 * config.clearance_m
+        too_wide = opening > gripper.stroke_m
+        opening = min(opening, gripper.stroke_m)
+        y = R[:, i]
+        for j in range(3):
+            if j == i:
+                continue
+            k = 3 - i - j
+            for s in (1.0, -1.0):
+                for tilt_deg in config.approach_tilts_deg:
+                    th = math.radians(tilt_deg)
+                    a = -s * R[:, j] * math.cos(th) + R[:, k] * math.sin(th)
+                    a /= np.linalg.norm(a)
+                    b = cross(y, a)  # slide direction on the face (tcp x)
+                    H = 0.5 * (abs(a @ R[:, j]) * size[j] + abs(a @ R[:, k]) * size[k])
+                    Hb = 0.5 * (abs(b @ R[:, j]) * size[j] + abs(b @ R[:, k]) * size[k])
+                    depth0 = min(H, reach)  # tcp depth below the box's extent towards the palm
+                    depths = depth0 - np.asarray(config.depth_steps_m, dtype=np.float64)
+                    depths = np.unique(depths[depths >= pad_l / 4.0])
+                    if depths.size == 0:
+                        continue
+                    half_slide = max(Hb - pad_w / 2.0, 0.0)
+                    slides = (
+                        np.linspace(-half_slide, half_slide, config.n_slide)
+                        if half_slide > 0
+                        else np.zeros(1)
+                    )
+                    D, S = (x.ravel() for x in np.meshgrid(depths, slides, indexing="ij"))
+                    p = c + S[:, None] * b - (H - D)[:, None] * a  # (m, 3)
+                    d = com - p
+                    off = np.linalg.norm(
+                        d - (d @ y)[:, None] * y, axis=1
+                    )  # closing line to the centre of mass
+                    top = 0.5 * (1.0 - float(a @ up))
+                    q = (
+                        0.4 * top
+                        + 0.3 * np.clip(1.0 - off / max_dim, 0.0, 1.0)
+                        + 0.2 * np.minimum(1.0, D / max(pad_l, 1e-9))
+                        + 0.1 * max(0.0, 1.0 - width / gripper.stroke_m)
+                    )
+                    m = len(p)
+                    Rf = np.stack([_frames(a[None], f * y[None])[0] for f in flips])  # (2, 3, 3)
+                    rows_R.append(np.repeat(Rf[None], m, axis=0).reshape(-1, 3, 3))
+                    rows_p.append(np.repeat(p, 2, axis=0))
+                    rows_q.append(np.repeat(q, 2))
+                    rows_c.append(
+                        np.repeat(np.stack([p - y * width / 2.0, p + y * width / 2.0], axis=1), 2, axis=0)
+                    )
+                    rows_open.append(np.full(2 * m, opening))
+                    rows_w.append(np.full(2 * m, width))
+                    pre.append(np.full(2 * m, "stroke" if too_wide else "", dtype=object))
+                    head = (
+                        f"box: close along obj {_AXES[i]} ({width * 1e3:.0f} mm, stroke "
+                        f"{gripper.stroke_m * 1e3:.0f} mm), approach {'-' if s > 0 else '+'}obj {_AXES[j]} "
+                        f"tilted {tilt_deg:+.0f} deg"
+                    )
+                    for depth, o in zip(D, off):
+                        text = f"{head}, {depth * 1e3:.0f} mm deep, {o * 1e3:.0f} mm from the centre of mass"
+                        reasons += [text, text]
+    if not rows_R:
+        return Candidates.empty()
+    n = len(reasons)
+    return Candidates(
+        _T(np.concatenate(rows_R), np.concatenate(rows_p)),
+        np.concatenate(rows_open),
+        np.concatenate(rows_w),
+        np.concatenate(rows_c),
+        np.clip(np.concatenate(rows_q), 0.0, 1.0),
+        np.full(n, "box", dtype=object),
+        reasons,
+        np.zeros(n, dtype=bool),
+        np.concatenate(pre),
+    )
+
+
+def _region_mask(
+    family: str, p1_obj: np.ndarray, p2_obj: np.ndarray, u_obj: np.ndarray, size: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(mask, label) of antipodal pairs allowed for the family, in the object frame (+y up)."""
+    regions = family_regions(family)
+    n = len(p1_obj)
+    if not regions:
+        return np.ones(n, dtype=bool), np.full(n, "surface", dtype=object)
+    height = float(size[1])
+    horizontal = np.abs(u_obj[:, 1]) <= math.sin(math.radians(_HORIZONTAL_DEG))
+    rim_y = height / 2.0 - max(_RIM_FRACTION * height, _RIM_MIN_M)
+    rim = horizontal & (p1_obj[:, 1] >= rim_y) & (p2_obj[:, 1] >= rim_y)
+    body_half = _BODY_FRACTION * height / 2.0
+    body = horizontal & (np.abs(p1_obj[:, 1]) <= body_half) & (np.abs(p2_obj[:, 1]) <= body_half)
+    mask = np.zeros(n, dtype=bool)
+    label = np.full(n, "", dtype=object)
+    if "body" in regions:
+        mask |= body
+        label[body] = "body"
+    if "rim" in regions:
+        mask |= rim
+        label[rim] = "rim"
+    return mask, label
+
+
+def antipodal_grasps(
+    target: ObjectModel, gripper: ParallelJawGeometry, config: GraspConfig, support: Plane | None = None
+) -> Candidates:
+    """Antipodal parallel-jaw grasps on the target's scaled mesh (see the module docstring); empty without
+    a mesh."""
+    mesh = target.mesh
+    if mesh is None or len(mesh.faces) == 0:
+        return Candidates.empty()
+    import trimesh
+
+    points, face_idx = trimesh.sample.sample_surface(mesh, config.mesh_samples, seed=config.seed)
+    normals = np.asarray(mesh.face_normals)[face_idx]
+    P = np.asarray(points, dtype=np.float64)
+    n = len(P)
+    cos_cone = math.cos(math.atan(config.friction_coefficient))
+    i1, i2 = np.triu_indices(n, k=1)
+    d = P[i2] - P[i1]
+    dist = np.linalg.norm(d, axis=1)
+    ok = (dist > 1e-3) & (dist + 2.0 * config.clearance_m <= gripper.stroke_m)
+    i1, i2, d, dist = i1[ok], i2[ok], d[ok], dist[ok]
+    u = d / dist[:, None]
+    c1 = -np.einsum("ij,ij->i", normals[i1], u)  # the pad at p1 pushes along +u, into the surface
+    c2 = np.einsum("ij,ij->i", normals[i2], u)
+    ok = (c1 >= cos_cone) & (c2 >= cos_cone)
+    i1, i2, u, dist, c1, c2 = i1[ok], i2[ok], u[ok], dist[ok], c1[ok], c2[ok]
+    R, c, size = target.pose.R, target.pose.t, target.pose.size
+    p1_obj, p2_obj = (P[i1] - c) @ R, (P[i2] - c) @ R
+    mask, label = _region_mask(target.family, p1_obj, p2_obj, u @ R, size)
+    i1, i2, u, dist, c1, c2, label = i1[mask], i2[mask], u[mask], dist[mask], c1[mask], c2[mask], label[mask]
+    if len(i1) == 0:
+        return Candidates.empty()
+    com = target.centre_of_mass
+    mid = 0.5 * (P[i1] + P[i2])
+    dm = com - mid
+    off = np.linalg.norm(dm - np.einsum("ij,ij->i", dm, u)[:, None] * u, axis=1)
+    margin = (np.arccos(np.clip(np.minimum(c1, c2), -1, 1)) / -math.atan(config.friction_coefficient)) + 1.0
+    max_dim = float(np.max(size))
+    pair_q = 0.35 * margin + 0.25 * np.clip(1.0 - off / max_dim, 0, 1) + 0.1 * (1.0 - dist / gripper.stroke_m)
+    keep = np.argsort(-pair_q, kind="stable")[: config.antipodal_pairs]
+    up = _up(support)
+    rows_T, rows_open, rows_w, rows_c, rows_q, reasons = [], [], [], [], [], []
+    for idx in keep:
+        y = u[idx]
+        a0 = -up - (-up @ y) * y  # the approach nearest top-down, perpendicular to the closing line
+        if np.linalg.norm(a0) < 1e-6:
+            a0 = cross(y, [1.0, 0.0, 0.0] if abs(y[0]) < 0.9 else [0.0, 1.0, 0.0])
+        a0 /= np.linalg.norm(a0)
+        b0 = cross(y, a0)
+        for rot_deg in config.antipodal_approaches_deg:
+            th = math.radians(rot_deg)
+            a = math.cos(th) * a0 + math.sin(th) * b0
+            top = 0.5 * (1.0 - float(a @ up))
+            q = float(pair_q[idx] + 0.3 * top)
+            for flip in (1.0, -1.0):
+                Rt = _frames(a[None], flip * y[None])[0]
+                T = np.eye(4)
+                T[:3, :3], T[:3, 3] = Rt, mid[idx]
+                rows_T.append(T)
+                rows_open.append(min(dist[idx] + 2.0 * config.clearance_m, gripper.stroke_m))
+                rows_w.append(dist[idx])
+                rows_c.append([P[i1[idx]], P[i2[idx]]])
+                rows_q.append(q)
+                reasons.append(
+                    f"antipodal ({target.family or 'mesh'} {label[idx]}): width {dist[idx] * 1e3:.0f} mm, "
+                    f"friction-cone margin {math.degrees(math.acos(min(c1[idx], c2[idx]))):.0f} of "
+                    f"{math.degrees(math.atan(config.friction_coefficient)):.0f} deg used, approach "
+                    f"{rot_deg:+.0f} deg from top-down, {off[idx] * 1e3:.0f} mm from the centre of mass"
+                )
+    m = len(rows_T)
+    return Candidates(
+        np.array(rows_T),
+        np.array(rows_open),
+        np.array(rows_w),
+        np.array(rows_c),
+        np.clip(np.array(rows_q), 0.0, 1.0),
+        np.full(m, "antipodal", dtype=object),
+        reasons,
+        np.ones(m, dtype=bool),
+        np.full(m, "", dtype=object),
+    )
+
+
+def _flat_under_cup(
+    samples: np.ndarray,
+    sample_normals: np.ndarray,
+    centre: np.ndarray,
+    normal: np.ndarray,
+    radius: float,
+    max_angle_deg: float,
+    spacing: float,
+) -> bool:
+    """True when mesh samples on the face plane (within 3 mm, normals within the seal angle) cover the cup's
+    rim (16 points) and centre, each within `spacing` of a flat sample."""
+    plane_dist = np.abs((samples - centre) @ normal)
+    flat = (plane_dist <= 0.003) & (sample_normals @ normal >= math.cos(math.radians(max_angle_deg)))
+    if not np.any(flat):
+        return False
+    e1 = cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = cross(normal, e1)
+    ang = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
+    ring = centre + radius * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2)
+    probes = np.vstack([centre[None], ring])
+    d = np.linalg.norm(probes[:, None, :] - samples[flat][None, :, :], axis=-1).min(axis=1)
+    return bool(np.all(d <= spacing))
+
+
+def suction_grasps(
+    target: ObjectModel, cup: SuctionCupGeometry, config: GraspConfig, support: Plane | None = None
+) -> Candidates:
+    """Suction grasps on the faces of the target's box (see the module docstring)."""
+    R, c, size = target.pose.R, target.pose.t, target.pose.size
+    com = target.centre_of_mass
+    up = _up(support)
+    r = cup.cup_radius_m
+    samples = normals = None
+    spacing = 0.0
+    if target.mesh is not None:
+        import trimesh
+
+        n_samples = 4 * config.mesh_samples
+        pts, fidx = trimesh.sample.sample_surface(target.mesh, n_samples, seed=config.seed)
+        samples, normals = np.asarray(pts), np.asarray(target.mesh.face_normals)[fidx]
+        # Mean spacing of the samples, doubled: a flat region covered by the samples has a sample this close.
+        spacing = 2.0 * math.sqrt(float(target.mesh.area) / n_samples)
+    rows_T, rows_c, rows_q, reasons, pre = [], [], [], [], []
+    for m in range(3):
+        others = [x for x in range(3) if x != m]
+        for s in (1.0, -1.0):
+            nrm = s * R[:, m]
+            if nrm @ up < -0.5:  # the face the object stands on (or hangs below)
+                continue
+            face_c = c + nrm * size[m] / 2.0
+            half = np.array([size[o] / 2.0 - r for o in others])
+            if np.any(half < -1e-9):
+                continue  # the cup does not fit on this face
+            half = np.maximum(half, 0.0)
+            # A g x g grid over the positions where the cup fits, plus the projection of the centre of mass;
+            # nearest that projection first.
+            com_proj = np.clip([(com - face_c) @ R[:, o] for o in others], -half, half)
+            g = config.suction_grid
+            us, vs = np.meshgrid(np.linspace(-half[0], half[0], g), np.linspace(-half[1], half[1], g))
+            grid = np.vstack([com_proj[None], np.stack([us.ravel(), vs.ravel()], axis=1)])
+            grid = np.unique(np.round(grid, 9), axis=0)
+            grid = grid[np.argsort(np.linalg.norm(grid - com_proj, axis=1), kind="stable")][: g * g]
+            for du, dv in grid:
+                p = face_c + du * R[:, others[0]] + dv * R[:, others[1]]
+                if samples is not None:
+                    flat_ok = _flat_under_cup(samples, normals, p, nrm, r, cup.max_face_angle_deg, spacing)
+                else:
+                    flat_ok = True
+                lateral = com - p
+                lateral = float(np.linalg.norm(lateral - (lateral @ nrm) * nrm))
+                face_half_diag = math.hypot(size[others[0]], size[others[1]]) / 2.0
+                a = -nrm
+                top = 0.5 * (1.0 - float(a @ up))
+                q = (
+                    0.5 * top
+                    + 0.4 * max(0.0, 1.0 - lateral / max(face_half_diag, 1e-9))
+                    + 0.1 * min(1.0, (2.0 * min(size[others[0]], size[others[1]])) / (8.0 * r))
+                )
+                payload = ""
+                if target.mass_kg is not None:
+                    sideways = float(a @ up) > -0.7  # not top-down: the load is a shear on the lip
+                    limit = cup.max_payload_kg(
+                        config.suction_safety_factor, lateral_g=1.0 if sideways else 0.0
+                    )
+                    if target.mass_kg > limit:
+                        payload = "payload"
+                for yaw in (0.0, 0.5 * math.pi, math.pi, 1.5 * math.pi):
+                    x0 = R[:, others[0]]
+                    x = math.cos(yaw) * x0 + math.sin(yaw) * cross(a, x0)
+                    Rt = np.stack([x, cross(a, x), a], axis=1)
+                    T = np.eye(4)
+                    T[:3, :3], T[:3, 3] = Rt, p
+                    rows_T.append(T)
+                    rows_c.append([p, p])
+                    rows_q.append(q)
+                    pre.append(payload or ("" if flat_ok else "suction_not_flat"))
+                    mass = "mass unknown" if target.mass_kg is None else f"{target.mass_kg:.2f} kg"
+                    reasons.append(
+                        f"suction: obj {'+' if s > 0 else '-'}{_AXES[m]} face, {lateral * 1e3:.0f} mm from the "
+                        f"centre of mass, approach {math.degrees(math.acos(np.clip(-a @ up, -1, 1))):.0f} deg "
+                        f"from top-down, {mass} (holds {cup.max_force_n:.0f} N)"
+                    )
+    n = len(rows_T)
+    if n == 0:
+        return Candidates.empty()
+    return Candidates(
+        np.array(rows_T),
+        np.zeros(n),
+        np.zeros(n),
+        np.array(rows_c),
+        np.clip(np.array(rows_q), 0.0, 1.0),
+        np.full(n, "suction", dtype=object),
+        reasons,
+        np.zeros(n, dtype=bool),
+        np.array(pre, dtype=object),
+    )
