@@ -59,9 +59,9 @@ def _preprocessor(folder: Path) -> dict[str, Any]:
 
 def _normalise(rgb: np.ndarray, mean: Any, std: Any) -> np.ndarray:
     """(H, W, 3) uint8 -> (3, H, W) float32 normalised."""
-    x = rgb.astype(np.float32) * (1.0 / 255.0)
-    x = (x - np.asarray(mean, np.float32)) / np.asarray(std, np.float32)
-    return np.ascontiguousarray(x.transpose(2, 0, 1))
+    x = rgb.astype(np.float32) * np.float32(1.0 / 255.0)
+    y = (x - np.asarray(mean, np.float32)) / np.asarray(std, np.float32)
+    return np.ascontiguousarray(y.transpose(2, 0, 1), dtype=np.float32)
 
 
 def _nms(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float) -> np.ndarray:

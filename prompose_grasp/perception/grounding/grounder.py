@@ -15,6 +15,8 @@ from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import depth_to_point_map, valid_depth_mask
 from prompose_grasp.perception.grounding.describe import (
     PALETTE,
+    SHAPE_FAMILIES,
+    SIZE_CLASSES,
     describe_text,
     dominant_colour,
     shape_family,
@@ -126,6 +128,20 @@ class Grounder:
 
             self._encoder = default_text_encoder(self.config.device)
         return self._encoder
+
+    def warm_up(self) -> None:
+        """Load the text encoder and embed every possible description and the shape-family sentences.
+
+        Descriptions come from a closed vocabulary (3 sizes x 12 colours x 6 families = 216 phrases), so
+        after this a first `ground` call only encodes the prompt's own phrases (one short batch).
+        """
+        phrases = [
+            describe_text(size, colour, family)
+            for size, _ in SIZE_CLASSES
+            for colour in PALETTE
+            for family in SHAPE_FAMILIES
+        ]
+        self._embed([*FAMILY_TEXTS.values(), *phrases])
 
     def _embed(self, texts: list[str]) -> np.ndarray:
         """(N, D) unit embeddings, cached per text (descriptions come from a small vocabulary)."""

@@ -85,8 +85,8 @@ class GroundingConfig:
                 continue
             if not math.isfinite(value) or value <= 0:
                 raise InvalidInputError(f"GroundingConfig.{f.name} must be finite and > 0, got {value!r}")
-        ints = ("plane_stride_px", "segment_stride_px", "ransac_iterations", "min_segment_px")
-        ints += ("max_candidates",)
+        ints: tuple[str, ...] = ("plane_stride_px", "segment_stride_px", "ransac_iterations")
+        ints += ("min_segment_px", "max_candidates")
         for name in ints:
             if not isinstance(getattr(self, name), int):
                 raise InvalidInputError(f"GroundingConfig.{name} must be an int, got {getattr(self, name)!r}")
