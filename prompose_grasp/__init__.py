@@ -5,6 +5,7 @@ The curated public API lives here; subpackages hold the rest:
 - `prompose_grasp.geometry`: SE(3), `Pose9D`, oriented-box IoU, point clouds, Chamfer distance
   (numpy + scipy only).
 - `prompose_grasp.eval`: NOCS-compatible 9-DoF pose metrics (`compute_nocs_map`).
+- `prompose_grasp.perception`: ProM-Pose, `ProMPose.default().estimate(frame, "the red mug")`.
 - `prompose_grasp.robot`: UR models (Pinocchio + MuJoCo from one DH table), FK/IK, trajectories, the
   `Arm` / `Gripper` / `RGBDCamera` interfaces and the shared command validator.
 """
@@ -16,12 +17,14 @@ from prompose_grasp.errors import (
     DeviceNotConnectedError,
     InvalidInputError,
     MissingDependencyError,
+    ObjectNotFoundError,
     PromposeError,
     UnknownNameError,
     UnreachableError,
     UnsafeCommandError,
 )
 from prompose_grasp.geometry import Pose9D
+from prompose_grasp.perception import Estimate, ProMPose
 from prompose_grasp.robot import (
     Arm,
     CommandValidator,
@@ -41,12 +44,15 @@ __all__ = [
     "CameraError",
     "CommandValidator",
     "DeviceNotConnectedError",
+    "Estimate",
     "FakeArm",
     "Gripper",
     "IKResult",
     "InvalidInputError",
     "MissingDependencyError",
+    "ObjectNotFoundError",
     "Pose9D",
+    "ProMPose",
     "PromposeError",
     "RGBDCamera",
     "RGBDFrame",

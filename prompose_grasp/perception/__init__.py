@@ -1,4 +1,9 @@
-"""ProM-Pose perception: text encoding and canonical shape priors (more modules join as they land).
+"""ProM-Pose perception: RGB-D frames + a prompt -> the metric 9-DoF box and scaled prior mesh of the object.
+
+- `ProMPose` (`perception.estimator`): the facade, `ProMPose.default().estimate(frame, prompt)` / `.track`.
+- `prompose_grasp.perception.grounding`: text -> mask (`Grounder`, the DINO + SAM 2 adapter).
+- `prompose_grasp.perception.fit`: the test-time L_geo fit of the prior (`fit_pose`).
+- `prompose_grasp.perception.tracker`: the sliding-window tracker behind `ProMPose.track`.
 
 - `prompose_grasp.perception.text`: sentence / token text encoders (`MiniLMTextEncoder` embedded default,
   `BertTextEncoder` adapter) and cosine `similarity`.
@@ -8,6 +13,16 @@
 Nothing heavy loads at import: the MiniLM weights load on the first `default_text_encoder()` call.
 """
 
+from prompose_grasp.perception.estimator import Estimate, EstimatorConfig, ProMPose
+from prompose_grasp.perception.fit import FitConfig, FitResult, fit_pose
+from prompose_grasp.perception.grounding import (
+    Candidate,
+    Grounder,
+    GroundingConfig,
+    GroundingDinoSam2Grounder,
+    GroundingResult,
+    SupportPlane,
+)
 from prompose_grasp.perception.priors import (
     PriorLibrary,
     ShapePrior,
@@ -25,12 +40,24 @@ from prompose_grasp.perception.text import (
 
 __all__ = [
     "BertTextEncoder",
+    "Candidate",
+    "Estimate",
+    "EstimatorConfig",
+    "FitConfig",
+    "FitResult",
+    "Grounder",
+    "GroundingConfig",
+    "GroundingDinoSam2Grounder",
+    "GroundingResult",
     "MiniLMTextEncoder",
     "PriorLibrary",
+    "ProMPose",
     "ShapePrior",
     "SuperquadricFit",
+    "SupportPlane",
     "TextEncoder",
     "default_text_encoder",
+    "fit_pose",
     "fit_superquadric",
     "from_mesh",
     "similarity",

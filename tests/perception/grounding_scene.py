@@ -32,6 +32,7 @@ class SceneFrame:
     gt_mask: np.ndarray  # (H, W) instance ids: tests only
     ids: dict[str, int]  # object name -> instance id
     up_cam: np.ndarray  # table normal (world +z) in the camera frame
+    gt_poses: dict  # object name -> ground-truth Pose9D in the camera frame: tests only
 
 
 def render_scene(width: int = 640, height: int = 480, seed: int = 0) -> SceneFrame:
@@ -63,4 +64,5 @@ def render_scene(width: int = 640, height: int = 480, seed: int = 0) -> SceneFra
         frame = world.render("front", rng=np.random.default_rng(seed))
         gt = world.ground_truth_mask("front")
         up_cam = world.T_world_cam("front")[:3, :3].T @ np.array([0.0, 0.0, 1.0])
-    return SceneFrame(frame.rgb, frame.depth_m, frame.intrinsics, gt, ids, up_cam)
+        poses = {g.name: g.as_pose9d() for g in world.ground_truth("front")}
+    return SceneFrame(frame.rgb, frame.depth_m, frame.intrinsics, gt, ids, up_cam, poses)

@@ -37,6 +37,7 @@ from prompose_grasp.perception.grounding.types import (
     GroundingConfig,
     GroundingResult,
     GroundingTiming,
+    SupportPlane,
 )
 
 __all__ = ["Grounder", "ground", "validate_frame"]
@@ -196,6 +197,22 @@ class Grounder:
         )
         return attrs, shares, xy
 
+    def support_plane(self, depth_m: np.ndarray, intrinsics: CameraIntrinsics) -> SupportPlane | None:
+        """The plane objects stand on in a depth image (the first stage of `ground`), or None.
+
+        Args:
+            depth_m: (H, W) float32 depth [m]; 0 or NaN where there is no reading.
+            intrinsics: its camera.
+        """
+        return self._support_plane(depth_to_point_map(depth_m, intrinsics))[0]
+
+    def _support_plane(self, points_map: np.ndarray) -> tuple[SupportPlane | None, np.ndarray]:
+        """The plane fitted on every `plane_stride_px`-th point of an (H, W, 3) point map, and the points."""
+        stride = self.config.plane_stride_px
+        Ps = points_map[::stride, ::stride].reshape(-1, 3)
+        Ps = Ps[np.isfinite(Ps[:, 2])]
+        return fit_support_plane(Ps, self.config), Ps
+
     def ground(
         self, rgb: np.ndarray, depth_m: np.ndarray, intrinsics: CameraIntrinsics, prompt: str
     ) -> GroundingResult:
@@ -215,9 +232,7 @@ class Grounder:
         parsed = parse_prompt(prompt)
         cfg = self.config
         P = depth_to_point_map(depth_m, intrinsics)
-        Ps = P[:: cfg.plane_stride_px, :: cfg.plane_stride_px].reshape(-1, 3)
-        Ps = Ps[np.isfinite(Ps[:, 2])]
-        plane = fit_support_plane(Ps, cfg)
+        plane, Ps = self._support_plane(P)
         frame = PlaneFrame(plane) if plane is not None else None
         hull = None
         if plane is not None and frame is not None:

@@ -16,6 +16,7 @@ import logging
 import re
 import threading
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 
 import numpy as np
 import trimesh
@@ -34,6 +35,7 @@ from prompose_grasp.perception.text import TextEncoder, default_text_encoder
 __all__ = [
     "DEFAULT_MATCH_THRESHOLD",
     "PriorLibrary",
+    "articulated_variants",
     "core_phrase",
     "head_noun",
     "superquadric_prior",
@@ -124,6 +126,47 @@ def superquadric_prior(
     )
 
 
+#: Articulated variants built so far, by (family, label, n_points, seed): a few ms each to build and sample.
+_VARIANTS: dict[tuple[str, str, int, int], ShapePrior] = {}
+_VARIANTS_LOCK = threading.Lock()
+
+
+def articulated_variants(prior: ShapePrior, seed: int = 0) -> tuple[ShapePrior, ...]:
+    """The other articulations of a library family's prior (a laptop's screen at other openings), or ().
+
+    Only priors of the built-in families (`source == "library:<family>"`, `families.FAMILIES`) with
+    `ShapeFamily.articulations` have variants; each has the same name, symmetry and point count as `prior`,
+    its own unit-box normalisation and typical size, and source `"library:<family>:<label>"`. Built once per
+    process and kept.
+    """
+    if not isinstance(prior, ShapePrior):
+        raise InvalidInputError(f"prior must be a ShapePrior, got {type(prior).__name__}")
+    family = FAMILIES.get(prior.name)
+    if family is None or not family.articulations or prior.source != f"library:{prior.name}":
+        return ()
+    out = []
+    for label, build in family.articulations:
+        key = (family.name, label, prior.n_points, int(seed))
+        with _VARIANTS_LOCK:
+            variant = _VARIANTS.get(key)
+        if variant is None:
+            variant = make_prior(
+                build(),
+                name=family.name,
+                source=f"library:{family.name}:{label}",
+                symmetry=family.symmetry,
+                n_points=prior.n_points,
+                seed=seed,
+                prompt=prior.prompt,
+                matched_text=prior.matched_text,
+                score=prior.score,
+            )
+            with _VARIANTS_LOCK:
+                _VARIANTS[key] = variant
+        out.append(variant)
+    return tuple(out)
+
+
 class PriorLibrary:
     """Text-retrieved canonical shape priors from parametric families, with a superquadric fallback.
 
@@ -151,6 +194,8 @@ class PriorLibrary:
         self.threshold = float(threshold)
         self._lock = threading.Lock()
         self._meshes: dict[str, trimesh.Trimesh] = {}
+        # Surface sampling costs tens of ms; a family's samples depend only on (family, n_points, seed).
+        self._sampled: dict[tuple[str, int, int], ShapePrior] = {}
         self._desc_texts: list[str] = []
         self._desc_family: np.ndarray | None = None
         self._desc_emb: np.ndarray | None = None
@@ -238,17 +283,19 @@ class PriorLibrary:
     ) -> ShapePrior:
         """The prior of a named family (no text matching): unit-box mesh and `n_points` seeded samples."""
         fam = self.family(family)
-        return make_prior(
-            self.mesh(family),
-            name=fam.name,
-            source=f"library:{fam.name}",
-            symmetry=fam.symmetry,
-            n_points=n_points,
-            seed=seed,
-            prompt=prompt,
-            matched_text=matched_text,
-            score=score,
-        )
+        key = (fam.name, int(n_points), int(seed))
+        sampled = self._sampled.get(key)
+        if sampled is None:
+            sampled = make_prior(
+                self.mesh(family),
+                name=fam.name,
+                source=f"library:{fam.name}",
+                symmetry=fam.symmetry,
+                n_points=n_points,
+                seed=seed,
+            )
+            self._sampled[key] = sampled
+        return replace(sampled, prompt=prompt, matched_text=matched_text, score=score)
 
     def generate(
         self,
