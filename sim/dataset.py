@@ -14,7 +14,14 @@ Layout::
     DIR/<scene>/<frame:06d>-depth.png    uint16 millimetres (0 = no reading), after the sensor noise model
     DIR/<scene>/<frame:06d>-mask.png     instance ids (uint8; 0 = background), matching objects[].id
     DIR/<scene>/<frame:06d>-meta.json    K, T_world_cam, objects [{id, category, prompt, mesh, R, t, size,
-                                         symmetry, visible_px}], all 9-DoF in the OpenCV camera frame
+                                         symmetry, visible_px[, handle_px, handle_visible]}], all 9-DoF in
+                                         the OpenCV camera frame
+
+Mug handle visibility (the NOCS protocol's `gt_handle_visibility`: a mug whose handle is not seen counts as
+symmetric about its axis): `handle_px` is the number of pixels where the handle's own visual geom is the
+front-most surface (a geom-level segmentation render, so occlusion by the mug body or other objects counts),
+and `handle_visible` is `handle_px >= HANDLE_VISIBLE_MIN_PX` (20: a handle seen edge-on or through a gap
+of a few pixels cannot fix the yaw). Only mugs carry the two fields.
 
 Default split (zero-shot protocol): test categories mug, bottle, laptop, camera are never in train or val
 scenes; train/val use box, carton, can, bowl, cup, ball, tube, sack, parcel. Test scenes hold 2-4
@@ -46,6 +53,7 @@ from prompose_grasp.errors import InvalidInputError, UnknownNameError
 __all__ = [
     "DEFAULT_TEST_CATEGORIES",
     "DEFAULT_TRAIN_CATEGORIES",
+    "HANDLE_VISIBLE_MIN_PX",
     "DatasetConfig",
     "generate",
     "make_split",
@@ -55,6 +63,9 @@ log = logging.getLogger(__name__)
 
 DEFAULT_TRAIN_CATEGORIES = ("box", "carton", "can", "bowl", "cup", "ball", "tube", "sack", "parcel")
 DEFAULT_TEST_CATEGORIES = ("mug", "bottle", "laptop", "camera")
+
+#: A mug's handle counts as visible (meta `handle_visible`) when at least this many pixels of it are seen.
+HANDLE_VISIBLE_MIN_PX = 20
 
 #: Size limits that keep large families (carton, sack, tube, laptop) tabletop-sized in household scenes.
 _TABLETOP_PARAMS = {
@@ -230,6 +241,30 @@ def _build_scene(rng: np.random.Generator, categories: Sequence[str], config: Da
     return world, target
 
 
+def _geom_segmentation(world, camera: str, renderer) -> np.ndarray:
+    """(H, W) int32 geom ids of the front-most surface per pixel (-1 = none): a segmentation render."""
+    import mujoco
+
+    renderer.update_scene(world.data, camera=camera)
+    renderer.enable_segmentation_rendering()
+    try:
+        seg = renderer.render()
+    finally:
+        renderer.disable_segmentation_rendering()
+    ids, types = seg[..., 0], seg[..., 1]
+    return np.where(types == int(mujoco.mjtObj.mjOBJ_GEOM), ids, -1).astype(np.int32)
+
+
+def _handle_geoms(world) -> dict[int, int]:
+    """instance id -> visual geom id of the handle, for each mug (its parts are [body, handle], see
+    `sim.objects`)."""
+    out = {}
+    for o in world.objects:
+        if o.category == "mug" and len(o.visual_geom_ids) >= 2:
+            out[o.instance_id] = int(o.visual_geom_ids[1])
+    return out
+
+
 def _write_png(path: Path, image: np.ndarray) -> None:
     import cv2
 
@@ -246,12 +281,21 @@ def generate_scene(index: int, config: DatasetConfig, is_test: bool) -> int:
     rng = np.random.default_rng([config.seed, index])
     categories = _scene_categories(rng, is_test, config)
     world, target = _build_scene(rng, categories, config)
+    handles = _handle_geoms(world)
+    seg_renderer = None
     with world:
         for k, T_world_cam in enumerate(_camera_path(rng, target, config.frames)):
             world.set_camera_pose("cam", T_world_cam)
             frame = world.render("cam", rng=rng)
             mask = world.ground_truth_mask("cam")
             gts = world.ground_truth("cam")
+            geoms = None
+            if handles:
+                if seg_renderer is None:
+                    import mujoco
+
+                    seg_renderer = mujoco.Renderer(world.model, height=config.height, width=config.width)
+                geoms = _geom_segmentation(world, "cam", seg_renderer)
             depth_mm = np.clip(np.rint(frame.depth_m * 1000.0), 0, 65535).astype(np.uint16)
             stem = out / f"{k:06d}"
             _write_png(Path(f"{stem}-color.png"), frame.rgb[..., ::-1])
@@ -261,20 +305,23 @@ def generate_scene(index: int, config: DatasetConfig, is_test: bool) -> int:
             for g in gts:
                 family = g.source.split(":", 1)[1] if g.source.startswith("procedural:") else None
                 mesh = {"family": family, "params": g.params} if family else {"path": g.source}
-                objects.append(
-                    {
-                        "id": g.instance_id,
-                        "name": g.name,
-                        "category": g.category,
-                        "prompt": g.prompt,
-                        "mesh": mesh,
-                        "R": g.R_cam_obj.tolist(),
-                        "t": g.t_cam_obj_m.tolist(),
-                        "size": g.size_m.tolist(),
-                        "symmetry": g.symmetry,
-                        "visible_px": int(np.count_nonzero(mask == g.instance_id)),
-                    }
-                )
+                entry = {
+                    "id": g.instance_id,
+                    "name": g.name,
+                    "category": g.category,
+                    "prompt": g.prompt,
+                    "mesh": mesh,
+                    "R": g.R_cam_obj.tolist(),
+                    "t": g.t_cam_obj_m.tolist(),
+                    "size": g.size_m.tolist(),
+                    "symmetry": g.symmetry,
+                    "visible_px": int(np.count_nonzero(mask == g.instance_id)),
+                }
+                if geoms is not None and g.instance_id in handles:
+                    handle_px = int(np.count_nonzero(geoms == handles[g.instance_id]))
+                    entry["handle_px"] = handle_px
+                    entry["handle_visible"] = handle_px >= HANDLE_VISIBLE_MIN_PX
+                objects.append(entry)
             meta = {
                 "scene": scene_name(index),
                 "frame": k,
@@ -289,6 +336,8 @@ def generate_scene(index: int, config: DatasetConfig, is_test: bool) -> int:
             tmp = Path(f"{stem}-meta.json.tmp")
             tmp.write_text(json.dumps(meta, indent=1))
             tmp.replace(Path(f"{stem}-meta.json"))  # the meta file appears only when the frame is complete
+    if seg_renderer is not None:
+        seg_renderer.close()
     return config.frames
 
 

@@ -8,7 +8,8 @@ Per frame and per object of the split's categories, with the ground-truth instan
 named so: it isolates the fit from grounding):
 
 - points: the masked depth back-projected with the frame's intrinsics;
-- support plane: RANSAC on the whole depth image (no ground truth; the table is the largest plane);
+- support plane: the library's `perception.grounding.plane.fit_support_plane` (RANSAC) on every 4th pixel of
+  the depth image (no ground truth; the table is the largest plane); the same plane for every method;
 - prior: `PriorLibrary().generate(prompt, points, up)` from the object's prompt;
 - ours (cold): `fit_pose(points, prior, support_plane_cam=plane)`;
 - ours (warm): `fit_pose(..., init=<this object's fit in the previous frame>)` (timing, and tracking-only
@@ -20,7 +21,9 @@ named so: it isolates the fit from grounding):
 
 All methods are scored in the same run by `prompose_grasp.eval.compute_nocs_map` in the three IoU modes (exact
 is the headline), with the dataset's y-symmetric categories and mug handle visibility from the ground truth
-(a mug's handle is visible when >= 20 of its mask pixels lie in the handle's part of the ground-truth box).
+(the NOCS protocol: a mug whose handle is not seen counts as symmetric about y). The dataset's meta has
+`handle_visible` (>= 20 pixels of the handle's own geom in a segmentation render, `sim.dataset`); for older
+datasets without it, the handle is visible when >= 20 masked points lie in its part of the ground-truth box.
 Library code never sees ground truth; only this script reads it.
 """
 
@@ -77,33 +80,17 @@ def _frames(data: Path, split: str) -> list[tuple[str, list[Path]]]:
 # Support plane (no ground truth)
 
 
-def ransac_plane(
-    points: np.ndarray, rng: np.random.Generator, threshold_m: float = 0.008, iterations: int = 300
-) -> np.ndarray:
-    """(4,) plane (n, d), n.x + d = 0, |n| = 1, n towards the camera: the largest plane of `points` by RANSAC,
-    refined by least squares on its inliers."""
-    best, best_count = None, -1
-    n_pts = len(points)
-    for _ in range(iterations):
-        a, b, c = points[rng.choice(n_pts, 3, replace=False)]
-        n = np.cross(b - a, c - a)
-        norm = np.linalg.norm(n)
-        if norm < 1e-9:
-            continue
-        n /= norm
-        count = int(np.count_nonzero(np.abs((points - a) @ n) < threshold_m))
-        if count > best_count:
-            best, best_count = (n, a), count
-    assert best is not None
-    n, a = best
-    inl = points[np.abs((points - a) @ n) < threshold_m]
-    c = inl.mean(axis=0)
-    _, _, Vt = np.linalg.svd(inl - c, full_matrices=False)
-    n = Vt[2]
-    d = -float(n @ c)
-    if d < 0.0:  # the camera (origin) must be on the positive side: n points up, towards it
-        n, d = -n, -d
-    return np.array([*n, d])
+def support_plane(depth_m: np.ndarray, intr: CameraIntrinsics) -> np.ndarray | None:
+    """(4,) plane (n, d), n.x + d = 0, |n| = 1, n towards the camera, or None: the library's support-plane
+    fit (`perception.grounding.plane.fit_support_plane`, RANSAC) on every 4th pixel of the depth image."""
+    from prompose_grasp.perception.grounding.plane import fit_support_plane
+    from prompose_grasp.perception.grounding.types import GroundingConfig
+
+    full = back_project(depth_m[::4, ::4], _subsampled(intr, 4))
+    plane = fit_support_plane(full, GroundingConfig())
+    if plane is None:
+        return None
+    return np.array([*plane.normal_cam, plane.offset_m])
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -146,8 +133,12 @@ def obb_baseline(points: np.ndarray, up: np.ndarray | None, plane: np.ndarray | 
 
 
 def _handle_visible(obj: dict[str, Any], points_cam: np.ndarray) -> int:
+    """1 when the mug's handle is seen (dataset meta `handle_visible`, from a geom-level segmentation render;
+    datasets without it: >= 20 masked points in the handle's part of the ground-truth box), 1 for non-mugs."""
     if obj["category"] != "mug":
         return 1
+    if "handle_visible" in obj:
+        return int(bool(obj["handle_visible"]))
     gt = Pose9D(obj["R"], obj["t"], obj["size"])
     local = gt.points_to_object(points_cam)
     params = obj.get("mesh", {}).get("params", {})
@@ -197,7 +188,6 @@ def run(
     plane_err_deg: list[float] = []
     records: list[dict[str, Any]] = []
     sym_by_cat: dict[str, str] = {}
-    rng = np.random.default_rng(0)
     frames_done = 0
     t_start = time.perf_counter()
     for scene, metas in _frames(data, split):
@@ -214,9 +204,10 @@ def run(
             intr = CameraIntrinsics(
                 K[0, 0], K[1, 1], K[0, 2], K[1, 2], int(meta["width"]), int(meta["height"])
             )
-            full = back_project(depth[::4, ::4], _subsampled(intr, 4))
-            plane = ransac_plane(full, rng)
-            up = plane[:3]
+            t0 = time.perf_counter()
+            plane = support_plane(depth, intr)
+            times["plane"].append(time.perf_counter() - t0)
+            up = plane[:3] if plane is not None else None
             gts: list[tuple[int, Pose9D, int]] = []
             preds: dict[str, list[tuple[int, Pose9D]]] = {m: [] for m in methods}
             for obj in meta["objects"]:
@@ -226,7 +217,8 @@ def run(
                 sym_by_cat[cat] = obj["symmetry"]
                 cls = synsets.index(cat)
                 gt = Pose9D(obj["R"], obj["t"], obj["size"])
-                plane_err_deg.append(math.degrees(math.acos(min(1.0, abs(float(gt.R[:, 1] @ up))))))
+                if up is not None:
+                    plane_err_deg.append(math.degrees(math.acos(min(1.0, abs(float(gt.R[:, 1] @ up))))))
                 pts = back_project(depth, intr, mask == obj["id"])  # oracle mask
                 gts.append((cls, gt, _handle_visible(obj, pts) if len(pts) else 1))
                 if len(pts) < _MIN_POINTS:
@@ -257,7 +249,16 @@ def run(
                 times["obb"].append(time.perf_counter() - t0)
                 preds["obb_plane"].append((cls, obb_baseline(pts, up, plane)))
                 ysym_obj = obj["symmetry"] == "y_continuous" or (cat == "mug" and gts[-1][2] == 0)
-                rec = {"scene": scene, "frame": meta["frame"], "id": iid, "category": cat, "points": len(pts)}
+                rec = {
+                    "scene": scene,
+                    "frame": meta["frame"],
+                    "id": iid,
+                    "category": cat,
+                    "points": len(pts),
+                    "handle_visible": gts[-1][2],
+                    "ours_size_ratio": (res.pose.size / gt.size).tolist(),
+                    "ours_hypothesis": res.mode,
+                }
                 for m in ("ours", "obb"):
                     pred = preds[m][-1][1]
                     a, sa = pred.to_nocs_sRT()
