@@ -310,23 +310,29 @@ def plan_pick_place(
 
 
 def _free(robot, scene, q0, q1, grip, opening, held, T_tcp_obj, cfg, T_tcp_flange, holding) -> np.ndarray:
-    """A free move: the joint line q0 -> q1, or a detour through points above both ends when it collides."""
+    """A free move: the joint line q0 -> q1, or, when it collides, a detour: straight up from q0, a joint line
+    across, straight down to q1, at 1, 2, 3 or 4 x `safe_height_m` above the higher end (first that is free)."""
+    held = held if holding else None
     W = np.array([q0, q1])
-    _, hit = check_path(
-        robot, scene, W, grip, opening, not holding, held if holding else None, T_tcp_obj, cfg
-    )
+    _, hit = check_path(robot, scene, W, grip, opening, not holding, held, T_tcp_obj, cfg)
     if hit is None:
         return W
     T0 = robot.fk(q0) @ grip.T_flange_tcp
     T1 = robot.fk(q1) @ grip.T_flange_tcp
     up = np.array([0.0, 0.0, 1.0]) if scene.support is None else np.asarray(scene.support.normal)
-    top = max(float(T0[:3, 3] @ up), float(T1[:3, 3] @ up)) + cfg.safe_height_m
-    A, B = T0.copy(), T1.copy()
-    A[:3, 3] += (top - float(T0[:3, 3] @ up)) * up
-    B[:3, 3] += (top - float(T1[:3, 3] @ up)) * up
-    up0 = _line(robot, T0, A, q0, T_tcp_flange, cfg.line_step_m)
-    down1 = _line(robot, T1, B, q1, T_tcp_flange, cfg.line_step_m)
-    if up0 is None or down1 is None:
-        name = "transfer" if holding else "to_pregrasp"
-        raise NoFeasibleMotion(name, f"blocked ({hit.reason}: {hit.name}), no detour above it is reachable")
-    return np.vstack([up0, down1[::-1]])
+    h0, h1 = float(T0[:3, 3] @ up), float(T1[:3, 3] @ up)
+    for k in (1, 2, 3, 4):
+        top = max(h0, h1) + k * cfg.safe_height_m
+        A, B = T0.copy(), T1.copy()
+        A[:3, 3] += (top - h0) * up
+        B[:3, 3] += (top - h1) * up
+        up0 = _line(robot, T0, A, q0, T_tcp_flange, cfg.line_step_m)
+        down1 = _line(robot, T1, B, q1, T_tcp_flange, cfg.line_step_m)
+        if up0 is None or down1 is None:
+            break  # higher is out of reach too
+        W = np.vstack([up0, down1[::-1]])
+        _, detour_hit = check_path(robot, scene, W, grip, opening, not holding, held, T_tcp_obj, cfg)
+        if detour_hit is None:
+            return W
+    name = "transfer" if holding else "to_pregrasp"
+    raise NoFeasibleMotion(name, f"blocked ({hit.reason}: {hit.name}); no detour above it is free and reachable")

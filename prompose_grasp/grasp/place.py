@@ -31,7 +31,7 @@ from prompose_grasp.errors import InvalidInputError, NoFeasiblePlace
 from prompose_grasp.geometry.se3 import as_transform, invert_T, make_T
 from prompose_grasp.grasp.batch_ik import ik_nearest_batch
 from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry
-from prompose_grasp.grasp.planner import _gripper, gripper_hulls
+from prompose_grasp.grasp.planner import _branch_order, _gripper, _verified, gripper_hulls
 from prompose_grasp.grasp.scene import CollisionScene
 from prompose_grasp.grasp.types import Grasp, ObjectModel
 from prompose_grasp.robot.model import RobotModel
@@ -268,17 +268,26 @@ def plan_place(
             rejected[grip_hit.reason] += 1
             continue
         Ts = np.stack([T_tcp, T_pre, T_ret]) @ T_tcp_flange
-        q, ok, _ = ik_nearest_batch(robot.spec, Ts[:1], seed, lower, upper)
+        q, ok, branches = ik_nearest_batch(robot.spec, Ts[:1], seed, lower, upper)
         if not ok[0]:
             rejected["ik"] += 1
             continue
-        q_near, ok_near, _ = ik_nearest_batch(robot.spec, Ts[1:], np.vstack([q[0], q[0]]), lower, upper)
-        if not np.all(ok_near) or np.max(np.linalg.norm(q_near - q[0], axis=1)) > 1.0:
-            rejected["ik_approach"] += 1
-            continue
-        hit = scene.arm_hit(robot, q[0])
-        if hit is not None:
-            rejected["arm_collision"] += 1
+        # Every in-limit branch, nearest the seed first, until one has a free arm and reaches the approach
+        # and retreat poses on the same branch.
+        why, q_ok = "arm_collision", None
+        for qb in _branch_order(q[0], branches[0]):
+            if not _verified(robot, qb, Ts[0]):
+                continue
+            q_near, ok_near, _ = ik_nearest_batch(robot.spec, Ts[1:], np.vstack([qb, qb]), lower, upper)
+            if not np.all(ok_near) or np.max(np.linalg.norm(q_near - qb, axis=1)) > 1.0:
+                why = "ik_approach"
+                continue
+            if scene.arm_hit(robot, qb) is None:
+                q_ok = qb
+                break
+            why = "arm_collision"
+        if q_ok is None:
+            rejected[why] += 1
             continue
         where = f"slot row {slot[0]} col {slot[1]} layer {slot[2]}" if slot else f"at {centre[:2].round(3)} m"
         return PlacePose(
@@ -286,7 +295,7 @@ def plan_place(
             T_base_tcp=T_tcp,
             T_base_preplace=T_pre,
             T_base_retreat=T_ret,
-            q=q[0],
+            q=q_ok,
             slot=slot,
             reason=f"{target.kind}: {where} of the surface frame, yaw {math.degrees(yaw):.0f} deg",
         )

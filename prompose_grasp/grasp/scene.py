@@ -244,7 +244,8 @@ class CollisionScene:
         geom_owner: dict[int, int] = {}  # id(geometry) -> pose index
         # Translation bytes -> pose index: lets the callback skip pairs of poses already known to collide
         # without a narrowphase call. Only a shortcut: the verdict always comes from fcl's contact geometry.
-        centre_owner: dict[bytes, int] = {}
+        # Several boxes may share a centre (a finger of a pose and the other finger of its flipped twin).
+        centre_owner: dict[bytes, list[int]] = {}
         objects = []
         for j, half in enumerate(halves):
             pool = self._pool_objects((float(half[0]), float(half[1]), float(half[2])), n)
@@ -252,7 +253,7 @@ class CollisionScene:
                 c = np.ascontiguousarray(centres[i, j], dtype=np.float64)
                 obj.setTransform(_transform(R[i], c))
                 geom_owner[id(geom)] = i
-                centre_owner[c.tobytes()] = i
+                centre_owner.setdefault(c.tobytes(), []).append(i)
                 objects.append(obj)
         query = fcl.DynamicAABBTreeCollisionManager()
         query.registerObjects(objects)
@@ -261,8 +262,8 @@ class CollisionScene:
         def callback_for(allowed: np.ndarray | None):
             def callback(o1, o2, _):
                 for o in (o1, o2):
-                    i = centre_owner.get(o.getTranslation().tobytes())
-                    if i is not None and hits[i] is not None:
+                    owners = centre_owner.get(o.getTranslation().tobytes())
+                    if owners is not None and all(hits[i] is not None for i in owners):
                         return False
                 result = fcl.CollisionResult()
                 if fcl.collide(o1, o2, self._request, result):
@@ -360,8 +361,12 @@ class CollisionScene:
             if fcl.collide(o1, o2, self._request, result):
                 c = result.contacts[0]
                 a, b = self._labels.get(id(c.o1)), self._labels.get(id(c.o2))
-                scene_hit = b if a is not None and a.kind == "arm" else a
-                part = a if a is not None and a.kind == "arm" else b
+                # One side is the scene (labelled, not "arm"), the other an arm capsule (labelled "arm") or
+                # a gripper part / held object (unlabelled).
+                if a is not None and a.kind != "arm":
+                    scene_hit, part = a, b
+                else:
+                    scene_hit, part = b, a
                 if scene_hit is not None and scene_hit.kind != "arm":
                     where = f"arm link {part.name}" if part is not None else "gripper or held object"
                     found.append(Hit(scene_hit.kind, f"{scene_hit.name} ({where})"))

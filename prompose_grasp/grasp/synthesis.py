@@ -210,6 +210,13 @@ def box_grasps(
                     )
                     D, S = (x.ravel() for x in np.meshgrid(depths, slides, indexing="ij"))
                     p = c + S[:, None] * b - (H - D)[:, None] * a  # (m, 3)
+                    # The pads must press on the faces: the tcp (the pads' centre) inside the face rectangle
+                    # (a steep tilt on a thin box can put it outside).
+                    local = (p - c) @ R[:, [j, k]]
+                    inside = np.all(np.abs(local) <= size[[j, k]] / 2.0 + 1e-12, axis=1)
+                    if not np.any(inside):
+                        continue
+                    p, D = p[inside], D[inside]
                     d = com - p
                     off = np.linalg.norm(
                         d - (d @ y)[:, None] * y, axis=1

@@ -1,0 +1,126 @@
+"""Place planning and pick-and-place motion: collision-free against a wall, at the promised resolution."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from prompose_grasp.errors import NoFeasiblePlace
+from prompose_grasp.geometry import Pose9D
+from prompose_grasp.geometry.se3 import make_T
+from prompose_grasp.grasp import (
+    CollisionScene,
+    MotionConfig,
+    ObjectModel,
+    PalletPattern,
+    ParallelJawGeometry,
+    PlaceTarget,
+    Plane,
+    SuctionCupGeometry,
+    check_path,
+    pallet_slots,
+    plan_grasps,
+    plan_pick_place,
+    plan_place,
+)
+from prompose_grasp.robot import HOME_Q, load_robot
+
+R_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # object +y -> base +z
+JAW = ParallelJawGeometry()
+ROBOT = load_robot("ur5e", tcp_offset=JAW.T_flange_tcp)
+TABLE = Plane.horizontal(0.0)
+
+
+def _inside_box(points, pose: Pose9D) -> np.ndarray:
+    local = (points - pose.t) @ pose.R
+    return np.all(np.abs(local) <= pose.size / 2, axis=-1)
+
+
+@pytest.fixture(scope="module")
+def wall_motion():
+    box = ObjectModel("box", Pose9D(R_UP, [-0.5, 0.15, 0.03], [0.05, 0.06, 0.06]))
+    # A 2 cm thick, 30 cm tall wall between the box and the place area.
+    wall = ObjectModel("wall", Pose9D(np.eye(3), [-0.45, -0.1, 0.15], [0.4, 0.02, 0.3]), kind="fixture")
+    grasp = plan_grasps(box, ROBOT, JAW, [wall], TABLE, None, HOME_Q).best
+    target = PlaceTarget("surface", make_T(np.eye(3), [-0.45, -0.35, 0.0]), [0.12, 0.12])
+    place = plan_place(box, grasp, target, ROBOT, JAW, [wall])
+    scene_pick = CollisionScene([wall], TABLE, None, box)
+    scene_held = CollisionScene([wall], TABLE, None, None)
+    motion = plan_pick_place(ROBOT, grasp, place, box, scene_pick, scene_held, JAW, HOME_Q)
+    return box, wall, grasp, place, target, scene_held, motion
+
+
+def test_segments_in_order_within_limits_and_clear_of_the_wall(wall_motion):
+    box, wall, grasp, place, _, _, motion = wall_motion
+    assert [s.name for s in motion.segments] == ["to_pregrasp", "approach", "lift", "transfer", "descend", "retreat"]
+    lower, upper = ROBOT.joint_limits
+    wall_grown = Pose9D(wall.pose.R, wall.pose.t, wall.pose.size)
+    for seg in motion.segments:
+        assert np.all(seg.path >= lower) and np.all(seg.path <= upper)
+        # Consecutive segments join.
+        for q in seg.path:
+            T = ROBOT.fk_tcp(q)
+            # Independent check: the tcp, the flange and every arm capsule end stay out of the wall.
+            pts = [T[:3, 3], ROBOT.fk(q)[:3, 3]] + [p for _, p0, p1, _ in ROBOT.capsules_in_base(q) for p in (p0, p1)]
+            assert not np.any(_inside_box(np.array(pts), wall_grown)), seg.name
+        np.testing.assert_allclose(seg.trajectory.q[-1], seg.waypoints[-1], atol=1e-12)  # timed to the end
+    names = [s.name for s in motion.segments]
+    for a, b in zip(names[:-1], names[1:]):
+        np.testing.assert_allclose(motion.segment(a).waypoints[-1], motion.segment(b).waypoints[0], atol=1e-9)
+    np.testing.assert_allclose(motion.segment("approach").waypoints[-1], grasp.q, atol=1e-12)
+    np.testing.assert_allclose(ROBOT.fk_tcp(motion.segment("descend").waypoints[-1]), place.T_base_tcp, atol=1e-9)
+    # The held box goes over the wall: its lowest point on the transfer clears the wall's top (30 cm).
+    T_tcp_obj = np.linalg.inv(grasp.T_base_tcp) @ box.pose.to_matrix()
+    transfer = motion.segment("transfer").path
+    centres = np.array([(ROBOT.fk_tcp(q) @ T_tcp_obj)[:3, 3] for q in transfer])
+    over = np.abs(centres[:, 1] - wall.pose.t[1]) < 0.05
+    assert np.any(over) and np.all(centres[over, 2] - 0.03 > 0.3 - 1e-3)  # 1 mm: the box shrink margin
+
+
+def test_direct_transfer_would_hit_the_wall_and_resolution_holds(wall_motion):
+    box, wall, grasp, place, _, scene_held, motion = wall_motion
+    T_tcp_obj = np.linalg.inv(grasp.T_base_tcp) @ box.pose.to_matrix()
+    lift_end = motion.segment("lift").waypoints[-1]
+    preplace = motion.segment("descend").waypoints[0]
+    _, hit = check_path(ROBOT, scene_held, np.array([lift_end, preplace]), JAW, grasp.opening_m, False, box, T_tcp_obj)
+    assert hit is not None and hit.name.startswith("wall")
+    # Between checked samples no point of the tcp / flange moves more than the resolution (5 mm).
+    res = MotionConfig().resolution_m
+    for seg in motion.segments:
+        tcp = np.array([ROBOT.fk_tcp(q)[:3, 3] for q in seg.path])
+        assert np.max(np.linalg.norm(np.diff(tcp, axis=0), axis=1)) <= res + 1e-12
+
+
+def test_place_on_surface_rests_the_box_inside(wall_motion):
+    box, _, _, place, target, _, _ = wall_motion
+    T_surf = target.T_base_surface
+    local = np.linalg.inv(T_surf) @ place.T_base_obj
+    assert abs(local[2, 3] - (0.03 + 0.005)) < 1e-12  # half height + the drop clearance
+    corners = Pose9D(place.T_base_obj[:3, :3], place.T_base_obj[:3, 3], box.pose.size).corners()
+    corners_s = (corners - T_surf[:3, 3]) @ T_surf[:3, :3]
+    assert np.all(np.abs(corners_s[:, :2]) <= target.half_extents_xy_m + 1e-12)
+    np.testing.assert_allclose(place.T_base_preplace[:3, 3], place.T_base_tcp[:3, 3] + [0, 0, 0.1], atol=1e-12)
+
+
+def test_pallet_slots_fill_in_order():
+    cup = SuctionCupGeometry()
+    robot = load_robot("ur10e", tcp_offset=cup.T_flange_tcp)
+    size = np.array([0.3, 0.2, 0.2])  # obj x, y (up), z
+    carton = ObjectModel("carton", Pose9D(R_UP, [0.0, -0.7, 0.1], size), family="carton")
+    grasp = plan_grasps(carton, robot, cup, [], TABLE, None, HOME_Q).best
+    pallet = PlaceTarget("pallet", make_T(np.eye(3), [0.0, 0.7, 0.1]), [0.4, 0.3], pattern=PalletPattern(2, 2, 2, 0.01))
+    slots = pallet_slots(pallet, np.array([0.15, 0.1]), 0.1)
+    assert [s for s, _ in slots][:5] == [(0, 0, 0), (0, 1, 0), (1, 0, 0), (1, 1, 0), (0, 0, 1)]
+    np.testing.assert_allclose(slots[0][1], [-0.155, -0.105, 0.1], atol=1e-12)  # pitch = carton + gap
+    first = plan_place(carton, grasp, pallet, robot, cup)
+    assert first.slot == (0, 0, 0)
+    # With slot (0, 0, 0) taken by an earlier carton, the next goes to (0, 1, 0); a second layer needs support.
+    T_s = pallet.T_base_surface
+    placed = [ObjectModel("c0", Pose9D(R_UP, T_s[:3, 3] + slots[0][1], size), family="carton")]
+    second = plan_place(carton, grasp, pallet, robot, cup, placed)
+    assert second.slot == (0, 1, 0)
+    full = [ObjectModel(f"c{k}", Pose9D(R_UP, T_s[:3, 3] + c, size)) for k, (_, c) in enumerate(slots[:4])]
+    assert plan_place(carton, grasp, pallet, robot, cup, full).slot == (0, 0, 1)
+    everything = [ObjectModel(f"c{k}", Pose9D(R_UP, T_s[:3, 3] + c, size)) for k, (_, c) in enumerate(slots)]
+    with pytest.raises(NoFeasiblePlace):
+        plan_place(carton, grasp, pallet, robot, cup, everything)

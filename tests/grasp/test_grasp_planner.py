@@ -1,0 +1,113 @@
+"""plan_grasps: feasible grasps best first, and rejections with their reasons."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from prompose_grasp.errors import NoFeasibleGrasp
+from prompose_grasp.geometry import Pose9D
+from prompose_grasp.grasp import (
+    GraspConfig,
+    ObjectModel,
+    ParallelJawGeometry,
+    Plane,
+    SuctionCupGeometry,
+    generate_candidates,
+    plan_grasps,
+)
+from prompose_grasp.robot import HOME_Q, load_robot
+
+R_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # object +y -> base +z
+JAW = ParallelJawGeometry()
+ROBOT = load_robot("ur5e", tcp_offset=JAW.T_flange_tcp)
+TABLE = Plane.horizontal(0.0)
+
+
+def _box(name, centre, size, **kw):
+    return ObjectModel(name, Pose9D(R_UP, centre, size), **kw)
+
+
+def test_feasible_grasps_reach_their_pose_and_clear_the_table():
+    target = _box("box", [-0.5, 0.1, 0.03], [0.05, 0.06, 0.06])  # 60 mm tall, 50 x 60 mm footprint
+    plan = plan_grasps(target, ROBOT, JAW, [], TABLE, None, HOME_Q, GraspConfig(max_grasps=8))
+    assert 0 < len(plan) <= 8
+    scores = [g.score for g in plan]
+    assert scores == sorted(scores, reverse=True)
+    np.testing.assert_allclose(plan.best.approach, [0, 0, -1], atol=1e-12)  # top-down wins
+    for g in plan:
+        np.testing.assert_allclose(ROBOT.fk_tcp(g.q), g.T_base_tcp, atol=1e-9)  # the IK reaches it
+        lower, upper = ROBOT.joint_limits
+        assert np.all(g.q >= lower) and np.all(g.q <= upper)
+        np.testing.assert_allclose(g.T_base_pregrasp[:3, 3], g.T_base_tcp[:3, 3] - 0.10 * g.approach, atol=1e-12)
+        np.testing.assert_allclose(g.T_base_retreat[:3, 3], g.T_base_tcp[:3, 3] + [0, 0, 0.10], atol=1e-12)
+        # Every gripper part (the sim's primitives) stays above the table at the grasp: corners of the parts.
+        for part in JAW.parts(g.opening_m):
+            T = g.T_base_tcp @ part.T_tcp_part
+            lo, hi = part.aabb_tcp()
+            half = (hi - lo) / 2.0
+            corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * half
+            z = (corners @ T[:3, :3].T + T[:3, 3])[:, 2]
+            assert z.min() >= GraspConfig().support_clearance_m - 1e-12, part.name
+    assert sum(plan.rejected.values()) + len(plan) + plan.n_unchecked == plan.n_candidates
+
+
+def test_wider_than_the_stroke_everywhere_gives_no_jaw_grasp_but_a_suction_grasp():
+    target = _box("carton", [-0.55, 0.0, 0.1], [0.2, 0.2, 0.15], family="carton")
+    with pytest.raises(NoFeasibleGrasp) as err:
+        plan_grasps(target, ROBOT, JAW, [], TABLE, None, HOME_Q)
+    assert set(err.value.rejected) == {"stroke"} and err.value.rejected["stroke"] == err.value.n_candidates > 0
+    assert "stroke" in str(err.value)
+    cup = SuctionCupGeometry()
+    robot = load_robot("ur5e", tcp_offset=cup.T_flange_tcp)
+    plan = plan_grasps(target, robot, cup, [], TABLE, None, HOME_Q)
+    assert plan.best.gripper == "suction"
+    np.testing.assert_allclose(plan.best.T_base_tcp[:3, 3], [-0.55, 0.0, 0.2], atol=1e-12)  # top centre
+    np.testing.assert_allclose(robot.fk_tcp(plan.best.q), plan.best.T_base_tcp, atol=1e-9)
+
+
+def _same(T, Ts):
+    return np.flatnonzero(np.all(np.abs(Ts - T) < 1e-12, axis=(1, 2)))
+
+
+def test_grasp_hitting_a_neighbour_is_rejected_with_that_reason():
+    target = _box("box", [-0.5, 0.1, 0.03], [0.05, 0.06, 0.06])
+    cfg = GraspConfig(exhaustive=True, max_grasps=10_000)
+    # The top-down grasp closing along base x (the box's 50 mm side).
+    cands = generate_candidates(target, JAW, cfg, TABLE)
+    pick = [
+        k
+        for k in range(len(cands))
+        if cands.pre_rejected[k] == ""
+        and np.allclose(cands.T_base_tcp[k][:3, 2], [0, 0, -1])
+        and np.allclose(np.abs(cands.T_base_tcp[k][:3, 1]), [1, 0, 0])
+        and np.allclose(cands.T_base_tcp[k][:2, 3], [-0.5, 0.1])
+    ]
+    assert pick
+    T = cands.T_base_tcp[pick[0]]
+    free = plan_grasps(target, ROBOT, JAW, [], TABLE, None, HOME_Q, cfg)
+    assert len(_same(T, np.array([g.T_base_tcp for g in free])))  # feasible without the neighbour
+    # A neighbour standing 5 mm from the box's +x face: where that finger must go (pad clearance 10 mm).
+    neighbour = _box("neighbour", [-0.5 + 0.025 + 0.005 + 0.02, 0.1, 0.05], [0.04, 0.1, 0.06])
+    plan = plan_grasps(target, ROBOT, JAW, [neighbour], TABLE, None, HOME_Q, cfg)
+    assert not len(_same(T, np.array([g.T_base_tcp for g in plan])))
+    assert plan.rejected.get("collision_object", 0) >= 1
+    # Everything still returned closes along the other axis or approaches away from the neighbour.
+    for g in plan:
+        assert not (np.allclose(g.approach, [0, 0, -1]) and abs(g.T_base_tcp[0, 1]) > 0.99)
+
+
+def test_points_of_an_unmodelled_obstacle_reject_like_an_object():
+    target = _box("box", [-0.5, 0.1, 0.03], [0.05, 0.06, 0.06])
+    rng = np.random.default_rng(5)
+    # A dense slab of observed points right above the box (a shelf nobody modelled), and the table's points.
+    shelf = rng.uniform([-0.6, 0.0, 0.09], [-0.4, 0.2, 0.1], (3000, 3))
+    table = np.column_stack([rng.uniform(-0.8, -0.2, 2000), rng.uniform(-0.2, 0.4, 2000), np.zeros(2000)])
+    cfg = GraspConfig(exhaustive=True)
+    try:
+        plan = plan_grasps(target, ROBOT, JAW, [], TABLE, np.vstack([shelf, table]), HOME_Q, cfg)
+        rejected = plan.rejected
+        assert all(abs(g.approach[2]) < 0.9 for g in plan)  # nothing from above any more
+    except NoFeasibleGrasp as err:
+        rejected = err.rejected
+    assert rejected.get("collision_points", 0) > 0

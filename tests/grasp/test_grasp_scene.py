@@ -1,0 +1,89 @@
+"""The fcl scene: what a query touches, against independent geometry."""
+
+from __future__ import annotations
+
+import fcl
+import numpy as np
+
+from prompose_grasp.geometry import Pose9D
+from prompose_grasp.geometry.se3 import make_T, random_rotation
+from prompose_grasp.grasp import CollisionScene, ObjectModel, Plane, voxelize_points
+
+
+def _sat_overlap(Ra, ca, ha, Rb, cb, hb) -> bool:
+    """Separating-axis test of two oriented boxes (independent of fcl)."""
+    axes = [Ra[:, i] for i in range(3)] + [Rb[:, i] for i in range(3)]
+    axes += [np.cross(Ra[:, i], Rb[:, j]) for i in range(3) for j in range(3)]
+    d = cb - ca
+    for ax in axes:
+        n = np.linalg.norm(ax)
+        if n < 1e-9:
+            continue
+        ax = ax / n
+        ra = np.sum(np.abs(Ra.T @ ax) * ha)
+        rb = np.sum(np.abs(Rb.T @ ax) * hb)
+        if abs(d @ ax) > ra + rb:
+            return False
+    return True
+
+
+def test_batched_box_queries_agree_with_separating_axes():
+    rng = np.random.default_rng(21)
+    obstacles = [
+        ObjectModel(f"o{i}", Pose9D(random_rotation(rng), rng.uniform(-0.3, 0.3, 3), rng.uniform(0.03, 0.12, 3)))
+        for i in range(6)
+    ]
+    scene = CollisionScene(obstacles)
+    n = 300
+    R = np.stack([random_rotation(rng) for _ in range(n)])
+    halves = [(0.02, 0.03, 0.05), (0.01, 0.01, 0.02)]
+    centres = np.stack([rng.uniform(-0.4, 0.4, (n, 3)), rng.uniform(-0.4, 0.4, (n, 3))], axis=1)
+    hits = scene.boxes_first_hits(R, centres, halves)
+    disagree = 0
+    for i in range(n):
+        expected = any(
+            _sat_overlap(R[i], centres[i, k], np.array(halves[k]), o.pose.R, o.pose.t, o.pose.size / 2)
+            for k in range(2)
+            for o in obstacles
+        )
+        disagree += expected != (hits[i] is not None)
+        if hits[i] is not None:
+            assert hits[i].kind == "object" and hits[i].reason == "collision_object"
+    # fcl's GJK/EPA box-box answers near touching configurations can differ from SAT by rounding only.
+    assert disagree == 0
+
+
+def test_support_points_and_target_are_told_apart():
+    table = Plane.horizontal(0.0)
+    target = ObjectModel("t", Pose9D(np.eye(3), [0.0, 0.0, 0.05], [0.05, 0.05, 0.1]))
+    rng = np.random.default_rng(2)
+    on_target = rng.uniform([-0.025, -0.025, 0.0], [0.025, 0.025, 0.1], (500, 3))
+    on_table = np.column_stack([rng.uniform(-0.5, 0.5, (500, 2)), np.full(500, 0.002)])
+    clutter = rng.uniform([0.2, 0.2, 0.0], [0.24, 0.24, 0.05], (300, 3))
+    scene = CollisionScene([], table, np.vstack([on_target, on_table, clutter]), target, voxel_size_m=0.01)
+    # Only the clutter is left as voxels: within its 4 x 4 x 5 cm block (+ one voxel of rounding).
+    assert len(scene.voxel_centres) > 0
+    assert np.all(scene.voxel_centres >= [0.19, 0.19, 0.0]) and np.all(scene.voxel_centres <= [0.25, 0.25, 0.06])
+    box = fcl.Box(0.02, 0.02, 0.02)
+    assert scene.collide_object(fcl.CollisionObject(box, fcl.Transform(np.array([0.22, 0.22, 0.03])))).kind == "points"
+    assert scene.collide_object(fcl.CollisionObject(box, fcl.Transform(np.array([0.0, 0.0, 0.05])))).kind == "target"
+    below = fcl.CollisionObject(box, fcl.Transform(np.array([-0.3, 0.0, 0.005])))
+    assert scene.collide_object(below).kind == "support"
+    assert scene.collide_object(below, include_support=False) is None
+    assert scene.collide_object(fcl.CollisionObject(box, fcl.Transform(np.array([-0.3, 0.0, 0.05])))) is None
+
+
+def test_voxels_cover_their_points_and_plane_from_camera_round_trip():
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-0.1, 0.1, (1000, 3))
+    centres = voxelize_points(pts, 0.01)
+    # Every point lies in some voxel (within half an edge of a centre along every axis).
+    d = np.abs(pts[:, None, :] - centres[None]).max(axis=2).min(axis=1)
+    assert np.all(d <= 0.005 + 1e-12)
+    T_base_cam = make_T(random_rotation(rng), rng.uniform(-1, 1, 3))
+    n_cam = np.array([0.1, -0.9, -0.3])
+    n_cam /= np.linalg.norm(n_cam)
+    plane = Plane.from_camera(n_cam, 0.8, T_base_cam)
+    x_cam = rng.normal(size=(20, 3))
+    x_base = x_cam @ T_base_cam[:3, :3].T + T_base_cam[:3, 3]
+    np.testing.assert_allclose(plane.height(x_base), x_cam @ n_cam + 0.8, atol=1e-12)  # same heights

@@ -1,0 +1,129 @@
+"""Grasp synthesis: analytic box grasps are antipodal and within the stroke; mesh pairs respect the friction
+cone and the family's regions; suction lands on flat faces where the cup fits."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+
+from prompose_grasp.geometry import Pose9D
+from prompose_grasp.geometry.se3 import random_rotation
+from prompose_grasp.grasp import (
+    GraspConfig,
+    ObjectModel,
+    ParallelJawGeometry,
+    Plane,
+    SuctionCupGeometry,
+    antipodal_grasps,
+    box_grasps,
+    suction_grasps,
+)
+
+R_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # object +y -> base +z
+JAW = ParallelJawGeometry()
+CONFIG = GraspConfig()
+
+
+def test_box_grasps_are_antipodal_and_within_stroke():
+    rng = np.random.default_rng(11)
+    for _ in range(10):
+        R = random_rotation(rng)
+        size = rng.uniform(0.02, 0.15, 3)
+        centre = rng.uniform(-0.3, 0.3, 3)
+        target = ObjectModel("box", Pose9D(R, centre, size))
+        c = box_grasps(target, JAW, CONFIG, Plane.horizontal(-1.0))
+        assert len(c) > 0
+        narrow = size + 2.0 * CONFIG.clearance_m <= JAW.stroke_m
+        kept = np.flatnonzero(c.pre_rejected == "")
+        # Candidates exist for every axis narrow enough, and none for the others.
+        assert bool(len(kept)) == bool(narrow.any())
+        for k in kept:
+            T = c.T_base_tcp[k]
+            np.testing.assert_allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-12)  # a rotation
+            assert np.linalg.det(T[:3, :3]) > 0
+            y_obj = R.T @ T[:3, 1]
+            i = int(np.argmax(np.abs(y_obj)))
+            np.testing.assert_allclose(np.abs(y_obj[i]), 1.0, atol=1e-12)  # closing along a box axis
+            assert narrow[i] and c.opening_m[k] <= JAW.stroke_m + 1e-12
+            assert math.isclose(c.width_m[k], size[i], abs_tol=1e-12)
+            local = (c.contacts[k] - centre) @ R  # (2, 3) contacts in the object frame
+            # On the two opposite faces normal to axis i, inside the face (antipodal with zero friction).
+            np.testing.assert_allclose(np.sort(local[:, i]), [-size[i] / 2, size[i] / 2], atol=1e-12)
+            others = [a for a in range(3) if a != i]
+            assert np.all(np.abs(local[:, others]) <= size[others] / 2 + 1e-12)
+            np.testing.assert_allclose(T[:3, 3], c.contacts[k].mean(axis=0), atol=1e-12)  # tcp centred
+            # The approach is perpendicular to the closing direction.
+            assert abs(T[:3, 2] @ T[:3, 1]) < 1e-12
+
+
+def test_top_down_box_grasp_is_best_and_centred():
+    target = ObjectModel("box", Pose9D(R_UP, [-0.5, 0.0, 0.04], [0.05, 0.08, 0.06]))
+    c = box_grasps(target, JAW, CONFIG, Plane.horizontal(0.0))
+    best = int(np.argmax(np.where(c.pre_rejected == "", c.quality, -1)))
+    np.testing.assert_allclose(c.T_base_tcp[best][:3, 2], [0.0, 0.0, -1.0], atol=1e-12)  # top-down
+    np.testing.assert_allclose(c.T_base_tcp[best][:2, 3], [-0.5, 0.0], atol=1e-12)  # over the centre
+    # The palm stays palm_clearance above the top face: tcp depth below the top = min(half height, reach).
+    depth = 0.04 - c.T_base_tcp[best][2, 3] + 0.04  # top at z = 0.08
+    assert math.isclose(depth, min(0.04, JAW.palm_to_tcp_m - CONFIG.palm_clearance_m), abs_tol=1e-12)
+
+
+def _annulus(r_in, r_out, height, family, centre=(0.0, 0.0, 0.0)):
+    mesh = trimesh.creation.annulus(r_min=r_in, r_max=r_out, height=height, sections=64)
+    mesh.apply_translation(centre)
+    pose = Pose9D(R_UP, centre, [2 * r_out, height, 2 * r_out])
+    return ObjectModel(family, pose, mesh=mesh, family=family)
+
+
+def _inward_normal(p, centre, r_in, r_out, height):
+    """Analytic inward normal of an annulus (axis along base z) at a surface point."""
+    d = p - centre
+    r = math.hypot(d[0], d[1])
+    radial = np.array([d[0], d[1], 0.0]) / r
+    if abs(abs(d[2]) - height / 2) < 1e-9:
+        return np.array([0.0, 0.0, -np.sign(d[2])])
+    return -radial if abs(r - r_out) < abs(r - r_in) else radial
+
+
+@pytest.mark.parametrize(("family", "r_in", "r_out"), [("bowl", 0.07, 0.08), ("mug", 0.03, 0.038)])
+def test_antipodal_pairs_in_friction_cone_and_family_region(family, r_in, r_out):
+    height = 0.09
+    centre = np.array([-0.5, 0.1, height / 2])
+    target = _annulus(r_in, r_out, height, family, centre)
+    c = antipodal_grasps(target, JAW, CONFIG, Plane.horizontal(0.0))
+    assert len(c) > 0
+    # A 64-gon deviates from the circle's normal by up to half a sector (2.8 deg).
+    cone = math.atan(CONFIG.friction_coefficient) + math.radians(180.0 / 64)
+    labels = set()
+    for k in range(len(c)):
+        p1, p2 = c.contacts[k]
+        u = (p2 - p1) / np.linalg.norm(p2 - p1)
+        assert np.arccos(np.clip(_inward_normal(p1, centre, r_in, r_out, height) @ u, -1, 1)) <= cone
+        assert np.arccos(np.clip(_inward_normal(p2, centre, r_in, r_out, height) @ -u, -1, 1)) <= cone
+        assert c.width_m[k] + 2 * CONFIG.clearance_m <= JAW.stroke_m + 1e-12
+        labels.add(c.reason[k].split(")")[0].split()[-1])
+        if family == "bowl":  # by the rim: both contacts in the top band
+            assert min(p1[2], p2[2]) >= height - max(0.15 * height, 0.015) - 1e-9
+    assert labels <= ({"rim"} if family == "bowl" else {"rim", "body"})
+
+
+def test_suction_on_faces_where_the_cup_fits_and_flat():
+    cup = SuctionCupGeometry()
+    carton = ObjectModel("carton", Pose9D(R_UP, [0.0, -0.6, 0.13], [0.38, 0.26, 0.24]), family="carton")
+    c = suction_grasps(carton, cup, CONFIG, Plane.horizontal(0.0))
+    assert len(c) and np.all(c.pre_rejected == "")
+    best = int(np.argmax(c.quality))
+    np.testing.assert_allclose(c.T_base_tcp[best][:3, 2], [0, 0, -1], atol=1e-12)  # top face, pressing down
+    np.testing.assert_allclose(c.T_base_tcp[best][:3, 3], [0.0, -0.6, 0.26], atol=1e-12)  # above the centre
+    for T in c.T_base_tcp:  # never from below
+        assert T[2, 2] < 0.5 + 1e-12
+    # A bottle-like cylinder (radius 20 mm < the 25 mm cup) with its mesh: no face seals.
+    mesh = trimesh.creation.cylinder(radius=0.02, height=0.2, sections=48)
+    bottle = ObjectModel("bottle", Pose9D(R_UP, [0, 0, 0], [0.04, 0.2, 0.04]), mesh=mesh, family="bottle")
+    c2 = suction_grasps(bottle, cup, CONFIG, Plane.horizontal(-0.1))
+    assert np.all(c2.pre_rejected != "")
+    # A heavy carton is refused for payload (118 N over a safety factor 2 holds 6 kg top-down).
+    heavy = ObjectModel("carton", carton.pose, family="carton", mass_kg=9.0)
+    assert set(suction_grasps(heavy, cup, CONFIG, Plane.horizontal(0.0)).pre_rejected) == {"payload"}
