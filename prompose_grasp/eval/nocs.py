@@ -470,6 +470,13 @@ class NocsAPCurves:
                 else np.full(len(NOCS_METRIC_KEYS), np.nan)
             )
         else:
+            missing = [n for n, g in zip(self.class_names, self.num_gt) if g == 0]
+            if missing:
+                logger.warning(
+                    "no ground truth for class(es) %s: their AP is 0 (NaN with predictions) and enters the "
+                    "mean as in the reference code; classes_without_gt='skip' leaves them out",
+                    ", ".join(missing),
+                )
             mean = per_class_ap.mean(axis=0)
         return {
             "mean": {key: float(100.0 * mean[k]) for k, key in enumerate(NOCS_METRIC_KEYS)},
@@ -576,14 +583,6 @@ def nocs_ap_curves(
             pose_ap[c] = voc_average_precision(
                 np.concatenate(pose_hits[c], axis=-1), s_pose, int(num_pose_gt[c])
             )
-    missing = [names[c + 1] for c in range(C) if num_gt[c] == 0]
-    if missing:
-        logger.warning(
-            "no ground truth for class(es) %s in %d images: their AP is 0 (NaN with predictions) and enters "
-            "the mean as in the reference code; classes_without_gt='skip' leaves them out",
-            ", ".join(missing),
-            len(images),
-        )
     return NocsAPCurves(
         class_names=names[1:],
         iou_mode=iou_mode,
