@@ -41,7 +41,7 @@ from prompose_grasp.grasp.synthesis import Candidates, antipodal_grasps, box_gra
 from prompose_grasp.grasp.types import Grasp, GraspConfig, GraspPlan, ObjectModel, Plane
 from prompose_grasp.robot.model import RobotModel
 
-__all__ = ["generate_candidates", "gripper_hulls", "plan_grasps"]
+__all__ = ["build_scene", "generate_candidates", "gripper_hulls", "plan_grasps", "robot_self_capsules"]
 
 log = logging.getLogger(__name__)
 
@@ -111,13 +111,56 @@ def _lowest_heights(
     """(N,) lowest height above the support of any hull box corner (exact for boxes) [m]."""
     n = support.normal
     # Height of a box = height of its centre - sum_k |n . axis_k| half_k; the axes are the tcp axes.
-    axes_dot = np.abs(np.einsum("j,njk->nk", n, T[:, :3, :3]))  # (N, 3)
+    axes_dot = np.abs(n @ T[:, :3, :3])  # (N, 3)
     low = np.full(T.shape[0], np.inf)
     for k, half in enumerate(halves):
-        c_base = np.einsum("nij,nj->ni", T[:, :3, :3], centres_tcp[:, k]) + T[:, :3, 3]
+        c_base = (T[:, :3, :3] @ centres_tcp[:, k, :, None])[..., 0] + T[:, :3, 3]
         h = support.height(c_base) - axes_dot @ np.asarray(half)
         low = np.minimum(low, h)
     return low
+
+
+def robot_self_capsules(
+    robot: RobotModel, gripper: ParallelJawGeometry | SuctionCupGeometry, q: np.ndarray
+) -> list[tuple[str, np.ndarray, np.ndarray, float]]:
+    """The arm's capsules at q plus one capsule around the gripper (flange to tcp, radius of its widest part),
+    in `base`: where the camera sees the robot itself."""
+    T_flange = robot.fk(q)
+    lo, hi = np.min([b[0] for b in gripper.hull_boxes().values()], axis=0), np.max(
+        [b[1] for b in gripper.hull_boxes().values()], axis=0
+    )
+    radius = float(np.linalg.norm(np.maximum(np.abs(lo[:2]), np.abs(hi[:2]))))
+    tip = (T_flange @ gripper.T_flange_tcp)[:3, 3]
+    return [*robot.capsules_in_base(q), ("gripper", T_flange[:3, 3], tip, radius)]
+
+
+def build_scene(
+    target: ObjectModel,
+    robot: RobotModel,
+    gripper: ParallelJawGeometry | SuctionCupGeometry | str = "parallel_jaw",
+    obstacles: Sequence[ObjectModel] = (),
+    support: Plane | None = None,
+    points_base: ArrayLike | None = None,
+    q_robot: ArrayLike | None = None,
+    config: GraspConfig | None = None,
+) -> CollisionScene:
+    """The `CollisionScene` `plan_grasps` builds: points cropped to the arm's reach (+0.3 m), without the robot
+    itself at `q_robot` (the configuration it had when the points were taken), the target's and the support's
+    points, and the points already explained by obstacles."""
+    cfg = config or GraspConfig()
+    grip = _gripper(gripper)
+    caps = [] if q_robot is None else robot_self_capsules(robot, grip, robot._q(q_robot, "q_robot"))
+    return CollisionScene(
+        obstacles,
+        support,
+        points_base,
+        target,
+        voxel_size_m=cfg.voxel_size_m,
+        target_margin_m=cfg.target_margin_m,
+        support_band_m=cfg.support_band_m,
+        crop_radius_m=robot.spec.reach_m + 0.3,
+        robot_capsules=caps,
+    )
 
 
 def plan_grasps(
@@ -140,7 +183,8 @@ def plan_grasps(
         obstacles: other objects and fixtures in `base`.
         support: the plane the target stands on, in `base`.
         points_base: (N, 3) observed points in `base` [m] (the target's and the support's are dropped).
-        q_seed: (6,) current joint configuration [rad]; zeros if None.
+        q_seed: (6,) current joint configuration [rad]; zeros if None. The points are taken to be observed
+            with the arm there (its own points are removed; see `build_scene`).
         config: `GraspConfig`.
         scene: a prebuilt `CollisionScene` for this target (then obstacles/support/points are not used).
 
@@ -160,15 +204,7 @@ def plan_grasps(
         raise InvalidInputError(f"robot must be a RobotModel (load_robot(...)), got {type(robot).__name__}")
     seed = np.zeros(6) if q_seed is None else robot._q(q_seed, "q_seed")
     if scene is None:
-        scene = CollisionScene(
-            obstacles,
-            support,
-            points_base,
-            target,
-            voxel_size_m=cfg.voxel_size_m,
-            target_margin_m=cfg.target_margin_m,
-            support_band_m=cfg.support_band_m,
-        )
+        scene = build_scene(target, robot, grip, obstacles, support, points_base, seed, cfg)
     support = scene.support
     timings: dict[str, float] = {"scene": (time.perf_counter() - t0) * 1e3}
 
@@ -203,9 +239,16 @@ def plan_grasps(
     # Gripper vs scene, one broadphase query for all survivors.
     t = time.perf_counter()
     alive = np.flatnonzero(status == "")
+    check = alive[cands.check_target[alive]]
+    if check.size and scene.target is not None:
+        # A target vertex inside a gripper box is a collision for certain: settled in numpy, so fcl's
+        # narrowphase (one Python callback per overlapping pair) only sees the undecided ones.
+        inside = _target_points_inside(scene.target, cands.T_base_tcp[check], centres_tcp[check], halves)
+        status[check[inside]] = "collision_target"
+        alive = np.flatnonzero(status == "")
     if alive.size:
         T = cands.T_base_tcp[alive]
-        centres = np.einsum("nij,nkj->nki", T[:, :3, :3], centres_tcp[alive]) + T[:, None, :3, 3]
+        centres = centres_tcp[alive] @ np.swapaxes(T[:, :3, :3], 1, 2) + T[:, None, :3, 3]
         hits = scene.boxes_first_hits(T[:, :3, :3], centres, halves, include_target=cands.check_target[alive])
         for i, hit in zip(alive, hits):
             if hit is not None:
@@ -283,6 +326,25 @@ def plan_grasps(
         raise NoFeasibleGrasp(dict(rejected), n)
     log.debug("plan_grasps: %d grasps of %d candidates; rejected %s", len(grasps), n, dict(rejected))
     return GraspPlan(tuple(grasps), dict(rejected), n, n_unchecked, timings)
+
+
+def _target_points_inside(
+    target: ObjectModel, T: np.ndarray, centres_tcp: np.ndarray, halves: list[tuple[float, float, float]]
+) -> np.ndarray:
+    """(N,) True where a vertex of the target (its mesh, at most 256 of them evenly picked, or its box corners)
+    lies inside one of the gripper boxes of pose n."""
+    if target.mesh is not None:
+        V = np.asarray(target.mesh.vertices, dtype=np.float64)
+        V = V[:: max(1, len(V) // 256)]
+    else:
+        V = target.pose.corners()
+    # Vertices in each pose's tcp frame: (N, V, 3).
+    local = (V[None, :, :] - T[:, None, :3, 3]) @ T[:, :3, :3]
+    hit = np.zeros(len(T), dtype=bool)
+    for k, half in enumerate(halves):
+        d = np.abs(local - centres_tcp[:, None, k, :])
+        hit |= np.any(np.all(d <= np.asarray(half), axis=2), axis=1)
+    return hit
 
 
 def _branch_order(q_first: np.ndarray, branches: np.ndarray) -> list[np.ndarray]:

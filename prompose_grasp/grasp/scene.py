@@ -99,6 +99,11 @@ class CollisionScene:
             the target and the support); the rest become voxel boxes of edge `voxel_size_m`.
         target: the object to grasp, or None.
         voxel_size_m, target_margin_m, support_band_m: see above [m].
+        crop_radius_m: points farther than this from the base origin are dropped (out of reach) [m].
+        robot_capsules: the arm's (and gripper's) capsules (name, p0, p1, radius) in `base` where the camera
+            saw it; points within `robot_margin_m` of them are the robot itself and are dropped.
+
+    Points inside an obstacle's box grown by one voxel are dropped too: the obstacle already stands for them.
     """
 
     def __init__(
@@ -110,6 +115,9 @@ class CollisionScene:
         voxel_size_m: float = 0.01,
         target_margin_m: float = 0.015,
         support_band_m: float = 0.01,
+        crop_radius_m: float | None = None,
+        robot_capsules: Sequence[tuple[str, np.ndarray, np.ndarray, float]] = (),
+        robot_margin_m: float = 0.03,
     ):
         if support is not None and not isinstance(support, Plane):
             raise InvalidInputError(
@@ -131,6 +139,13 @@ class CollisionScene:
             if P.ndim != 2 or P.shape[1] != 3:
                 raise InvalidInputError(f"points_base must have shape (N, 3) [m], got {P.shape}")
             P = P[np.all(np.isfinite(P), axis=1)]
+            if crop_radius_m is not None:
+                P = P[np.einsum("ij,ij->i", P, P) <= float(crop_radius_m) ** 2]
+            for obs in obstacles:
+                local = (P - obs.pose.t) @ obs.pose.R
+                P = P[~np.all(np.abs(local) <= obs.pose.size / 2.0 + voxel_size_m, axis=1)]
+            for _, p0, p1, radius in robot_capsules:
+                P = P[_segment_distance(P, np.asarray(p0), np.asarray(p1)) > radius + robot_margin_m]
             if target is not None:
                 local = (P - target.pose.t) @ target.pose.R
                 inside = np.all(np.abs(local) <= target.pose.size / 2.0 + target_margin_m, axis=1)
@@ -162,7 +177,7 @@ class CollisionScene:
         self._request = fcl.CollisionRequest(num_max_contacts=1, enable_contact=True)
         # Query boxes reused between calls, per half-extent triple: (geometry, object) pairs. fcl reports the
         # Python geometry of each contact, so the geometry identifies the query box.
-        self._pool: dict[tuple[float, float, float], list[tuple[fcl.Box, fcl.CollisionObject]]] = {}
+        self._pool: dict[tuple[int, float, float, float], list[tuple[fcl.Box, fcl.CollisionObject]]] = {}
         self._capsules: dict[tuple[int, int], tuple[fcl.Capsule, fcl.CollisionObject]] = {}
         self._arm_cache: dict[int, list] = {}
         self._arm_managers: dict[tuple[int, ...], tuple] = {}
@@ -211,9 +226,12 @@ class CollisionScene:
     # batched oriented boxes (gripper hulls)
 
     def _pool_objects(
-        self, half: tuple[float, float, float], n: int
+        self, key: tuple[int, float, float, float], n: int
     ) -> list[tuple[fcl.Box, fcl.CollisionObject]]:
-        pool = self._pool.setdefault(half, [])
+        """n reusable query boxes for slot key = (slot index, half extents): two slots of equal size (the
+        fingers) must not share objects."""
+        half = key[1:]
+        pool = self._pool.setdefault(key, [])
         while len(pool) < n:
             geom = fcl.Box(2.0 * half[0], 2.0 * half[1], 2.0 * half[2])
             pool.append((geom, fcl.CollisionObject(geom, fcl.Transform())))
@@ -248,7 +266,7 @@ class CollisionScene:
         centre_owner: dict[bytes, list[int]] = {}
         objects = []
         for j, half in enumerate(halves):
-            pool = self._pool_objects((float(half[0]), float(half[1]), float(half[2])), n)
+            pool = self._pool_objects((j, float(half[0]), float(half[1]), float(half[2])), n)
             for i, (geom, obj) in enumerate(pool):
                 c = np.ascontiguousarray(centres[i, j], dtype=np.float64)
                 obj.setTransform(_transform(R[i], c))
@@ -382,6 +400,14 @@ class CollisionScene:
                 if fcl.collide(obj, self.support_object, self._request, fcl.CollisionResult()):
                     return Hit("support", "support plane (gripper or held object)")
         return found[0] if found else None
+
+
+def _segment_distance(P: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+    """(N,) distances [m] of points (N, 3) from the segment p0 -> p1."""
+    d = p1 - p0
+    L2 = float(d @ d)
+    s = np.zeros(len(P)) if L2 < 1e-18 else np.clip((P - p0) @ d / L2, 0.0, 1.0)
+    return np.linalg.norm(P - (p0 + s[:, None] * d), axis=1)
 
 
 def _z_to(axis: np.ndarray, length: float) -> np.ndarray:

@@ -176,90 +176,86 @@ def box_grasps(
     up = _up(support)
     pad_w, _, pad_l = gripper.pad_size_m
     reach = gripper.palm_to_tcp_m - config.palm_clearance_m  # deepest the box may reach above the tcp
-    rows_R, rows_p, rows_open, rows_w, rows_q, rows_c, reasons, pre = [], [], [], [], [], [], [], []
     max_dim = float(np.max(size))
-    flips = np.array([1.0, -1.0])
-    for i in range(3):
-        width = float(size[i])
-        opening = width + 2.0 * config.clearance_m
-        too_wide = opening > gripper.stroke_m
-        opening = min(opening, gripper.stroke_m)
-        y = R[:, i]
-        for j in range(3):
-            if j == i:
-                continue
-            k = 3 - i - j
-            for s in (1.0, -1.0):
-                for tilt_deg in config.approach_tilts_deg:
-                    th = math.radians(tilt_deg)
-                    a = -s * R[:, j] * math.cos(th) + R[:, k] * math.sin(th)
-                    a /= np.linalg.norm(a)
-                    b = cross(y, a)  # slide direction on the face (tcp x)
-                    H = 0.5 * (abs(a @ R[:, j]) * size[j] + abs(a @ R[:, k]) * size[k])
-                    Hb = 0.5 * (abs(b @ R[:, j]) * size[j] + abs(b @ R[:, k]) * size[k])
-                    depth0 = min(H, reach)  # tcp depth below the box's extent towards the palm
-                    depths = depth0 - np.asarray(config.depth_steps_m, dtype=np.float64)
-                    depths = np.unique(depths[depths >= pad_l / 4.0])
-                    if depths.size == 0:
-                        continue
-                    half_slide = max(Hb - pad_w / 2.0, 0.0)
-                    slides = (
-                        np.linspace(-half_slide, half_slide, config.n_slide)
-                        if half_slide > 0
-                        else np.zeros(1)
-                    )
-                    D, S = (x.ravel() for x in np.meshgrid(depths, slides, indexing="ij"))
-                    p = c + S[:, None] * b - (H - D)[:, None] * a  # (m, 3)
-                    # The pads must press on the faces: the tcp (the pads' centre) inside the face rectangle
-                    # (a steep tilt on a thin box can put it outside).
-                    local = (p - c) @ R[:, [j, k]]
-                    inside = np.all(np.abs(local) <= size[[j, k]] / 2.0 + 1e-12, axis=1)
-                    if not np.any(inside):
-                        continue
-                    p, D = p[inside], D[inside]
-                    d = com - p
-                    off = np.linalg.norm(
-                        d - (d @ y)[:, None] * y, axis=1
-                    )  # closing line to the centre of mass
-                    top = 0.5 * (1.0 - float(a @ up))
-                    q = (
-                        0.4 * top
-                        + 0.3 * np.clip(1.0 - off / max_dim, 0.0, 1.0)
-                        + 0.2 * np.minimum(1.0, D / max(pad_l, 1e-9))
-                        + 0.1 * max(0.0, 1.0 - width / gripper.stroke_m)
-                    )
-                    m = len(p)
-                    Rf = np.stack([_frames(a[None], f * y[None])[0] for f in flips])  # (2, 3, 3)
-                    rows_R.append(np.repeat(Rf[None], m, axis=0).reshape(-1, 3, 3))
-                    rows_p.append(np.repeat(p, 2, axis=0))
-                    rows_q.append(np.repeat(q, 2))
-                    rows_c.append(
-                        np.repeat(np.stack([p - y * width / 2.0, p + y * width / 2.0], axis=1), 2, axis=0)
-                    )
-                    rows_open.append(np.full(2 * m, opening))
-                    rows_w.append(np.full(2 * m, width))
-                    pre.append(np.full(2 * m, "stroke" if too_wide else "", dtype=object))
-                    head = (
-                        f"box: close along obj {_AXES[i]} ({width * 1e3:.0f} mm, stroke "
-                        f"{gripper.stroke_m * 1e3:.0f} mm), approach {'-' if s > 0 else '+'}obj {_AXES[j]} "
-                        f"tilted {tilt_deg:+.0f} deg"
-                    )
-                    for depth, o in zip(D, off):
-                        text = f"{head}, {depth * 1e3:.0f} mm deep, {o * 1e3:.0f} mm from the centre of mass"
-                        reasons += [text, text]
-    if not rows_R:
+    # Every (closing axis i, approach axis j, side s, tilt) combination, as rows of arrays.
+    combos = [
+        (i, j, s, t)
+        for i in range(3)
+        for j in range(3)
+        if j != i
+        for s in (1.0, -1.0)
+        for t in config.approach_tilts_deg
+    ]
+    I, J, S, TILT = (np.array(x) for x in zip(*combos))
+    K = 3 - I - J
+    th = np.radians(TILT)
+    Ri, Rj, Rk = R[:, I].T, R[:, J].T, R[:, K].T  # (C, 3) axes in base
+    a = -S[:, None] * Rj * np.cos(th)[:, None] + Rk * np.sin(th)[:, None]
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    y = Ri
+    b = cross(y, a)  # slide direction on the face (tcp x)
+    sj, sk = size[J], size[K]
+    H = 0.5 * (np.abs(np.sum(a * Rj, axis=1)) * sj + np.abs(np.sum(a * Rk, axis=1)) * sk)
+    Hb = 0.5 * (np.abs(np.sum(b * Rj, axis=1)) * sj + np.abs(np.sum(b * Rk, axis=1)) * sk)
+    depth0 = np.minimum(H, reach)  # tcp depth below the box's extent towards the palm
+    steps = np.asarray(config.depth_steps_m, dtype=np.float64)
+    n_s = config.n_slide
+    half_slide = np.maximum(Hb - pad_w / 2.0, 0.0)
+    unit = np.linspace(-1.0, 1.0, n_s) if n_s > 1 else np.zeros(1)
+    # Grid (C, depth steps, slides).
+    D = np.broadcast_to(depth0[:, None, None] - steps[None, :, None], (len(combos), len(steps), n_s))
+    Sl = np.broadcast_to(half_slide[:, None, None] * unit[None, None, :], D.shape)
+    P = c + Sl[..., None] * b[:, None, None, :] - (H[:, None, None] - D)[..., None] * a[:, None, None, :]
+    # The pads must press on the faces: the tcp (the pads' centre) inside the face rectangle (a steep tilt on a
+    # thin box can put it outside), deep enough for 3/4 of the pad, and each slide position once.
+    lj = np.abs(np.sum((P - c) * Rj[:, None, None, :], axis=-1))
+    lk = np.abs(np.sum((P - c) * Rk[:, None, None, :], axis=-1))
+    keep = (lj <= sj[:, None, None] / 2 + 1e-12) & (lk <= sk[:, None, None] / 2 + 1e-12) & (D >= pad_l / 4.0)
+    if n_s > 1:
+        keep &= np.broadcast_to((half_slide > 0)[:, None, None] | (unit == 0)[None, None, :], D.shape)
+    # Drop repeated depths (when depth0 - step collapses on another).
+    ci, di, si = np.nonzero(keep)
+    if ci.size == 0:
         return Candidates.empty()
-    n = len(reasons)
+    p = P[ci, di, si]
+    depth = D[ci, di, si]
+    yy, aa = y[ci], a[ci]
+    d = com - p
+    off = np.linalg.norm(d - np.sum(d * yy, axis=1)[:, None] * yy, axis=1)  # closing line to the com
+    width = size[I[ci]]
+    top = 0.5 * (1.0 - aa @ up)
+    q = (
+        0.4 * top
+        + 0.3 * np.clip(1.0 - off / max_dim, 0.0, 1.0)
+        + 0.2 * np.minimum(1.0, depth / max(pad_l, 1e-9))
+        + 0.1 * np.clip(1.0 - width / gripper.stroke_m, 0.0, 1.0)
+    )
+    # Both flips of each grasp (the same jaws turned half a turn about the approach).
+    m = len(p)
+    Rf = np.stack([_frames(aa, yy), _frames(aa, -yy)], axis=1).reshape(-1, 3, 3)
+    rep = np.repeat(np.arange(m), 2)
+    too_wide = width + 2.0 * config.min_clearance_m > gripper.stroke_m
+    opening = np.minimum(width + 2.0 * config.clearance_m, gripper.stroke_m)
+    contacts = np.stack([p - yy * width[:, None] / 2.0, p + yy * width[:, None] / 2.0], axis=1)
+    reasons = []
+    for r in range(m):
+        k = ci[r]
+        text = (
+            f"box: close along obj {_AXES[I[k]]} ({width[r] * 1e3:.0f} mm, stroke {gripper.stroke_m * 1e3:.0f} "
+            f"mm), approach {'-' if S[k] > 0 else '+'}obj {_AXES[J[k]]} tilted {TILT[k]:+.0f} deg, "
+            f"{depth[r] * 1e3:.0f} mm deep, {off[r] * 1e3:.0f} mm from the centre of mass"
+        )
+        reasons += [text, text]
     return Candidates(
-        _T(np.concatenate(rows_R), np.concatenate(rows_p)),
-        np.concatenate(rows_open),
-        np.concatenate(rows_w),
-        np.concatenate(rows_c),
-        np.clip(np.concatenate(rows_q), 0.0, 1.0),
-        np.full(n, "box", dtype=object),
+        _T(Rf, p[rep]),
+        opening[rep],
+        width[rep],
+        contacts[rep],
+        np.clip(q[rep], 0.0, 1.0),
+        np.full(2 * m, "box", dtype=object),
         reasons,
-        np.zeros(n, dtype=bool),
-        np.concatenate(pre),
+        np.zeros(2 * m, dtype=bool),
+        np.where(too_wide[rep], "stroke", "").astype(object),
     )
 
 
@@ -306,7 +302,7 @@ def antipodal_grasps(
     i1, i2 = np.triu_indices(n, k=1)
     d = P[i2] - P[i1]
     dist = np.linalg.norm(d, axis=1)
-    ok = (dist > 1e-3) & (dist + 2.0 * config.clearance_m <= gripper.stroke_m)
+    ok = (dist > 1e-3) & (dist + 2.0 * config.min_clearance_m <= gripper.stroke_m)
     i1, i2, d, dist = i1[ok], i2[ok], d[ok], dist[ok]
     u = d / dist[:, None]
     c1 = -np.einsum("ij,ij->i", normals[i1], u)  # the pad at p1 pushes along +u, into the surface
@@ -328,41 +324,47 @@ def antipodal_grasps(
     pair_q = 0.35 * margin + 0.25 * np.clip(1.0 - off / max_dim, 0, 1) + 0.1 * (1.0 - dist / gripper.stroke_m)
     keep = np.argsort(-pair_q, kind="stable")[: config.antipodal_pairs]
     up = _up(support)
-    rows_T, rows_open, rows_w, rows_c, rows_q, reasons = [], [], [], [], [], []
-    for idx in keep:
-        y = u[idx]
-        a0 = -up - (-up @ y) * y  # the approach nearest top-down, perpendicular to the closing line
-        if np.linalg.norm(a0) < 1e-6:
-            a0 = cross(y, [1.0, 0.0, 0.0] if abs(y[0]) < 0.9 else [0.0, 1.0, 0.0])
-        a0 /= np.linalg.norm(a0)
-        b0 = cross(y, a0)
+    y = u[keep]  # (K, 3) closing lines
+    # The approach nearest top-down, perpendicular to the closing line (any perpendicular when it is vertical).
+    a0 = -up[None, :] - (y @ -up)[:, None] * y
+    small = np.linalg.norm(a0, axis=1) < 1e-6
+    if np.any(small):
+        helper = np.where(np.abs(y[small, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+        a0[small] = cross(y[small], helper)
+    a0 /= np.linalg.norm(a0, axis=1, keepdims=True)
+    b0 = cross(y, a0)
+    th = np.radians(np.asarray(config.antipodal_approaches_deg, dtype=np.float64))  # (M,)
+    a = np.cos(th)[None, :, None] * a0[:, None, :] + np.sin(th)[None, :, None] * b0[:, None, :]  # (K, M, 3)
+    K, M = a.shape[:2]
+    flips = np.array([1.0, -1.0])
+    yk = flips[None, None, :, None] * y[:, None, None, :]  # (K, 1, 2, 3)
+    ak = np.broadcast_to(a[:, :, None, :], (K, M, 2, 3))
+    yk = np.broadcast_to(yk, (K, M, 2, 3))
+    R = np.stack([cross(yk, ak), yk, ak], axis=-1).reshape(-1, 3, 3)
+    p = np.broadcast_to(mid[keep][:, None, None, :], (K, M, 2, 3)).reshape(-1, 3)
+    top = 0.5 * (1.0 - a @ up)  # (K, M)
+    q = (pair_q[keep][:, None] + 0.3 * top)[:, :, None].repeat(2, axis=2).reshape(-1)
+    width = np.broadcast_to(dist[keep][:, None, None], (K, M, 2)).reshape(-1)
+    contacts = np.stack([P[i1[keep]], P[i2[keep]]], axis=1)  # (K, 2, 3)
+    contacts = np.broadcast_to(contacts[:, None, None], (K, M, 2, 2, 3)).reshape(-1, 2, 3)
+    used = np.degrees(np.arccos(np.clip(np.minimum(c1[keep], c2[keep]), -1.0, 1.0)))
+    cone_deg = math.degrees(math.atan(config.friction_coefficient))
+    reasons = []
+    for k, idx in enumerate(keep):
         for rot_deg in config.antipodal_approaches_deg:
-            th = math.radians(rot_deg)
-            a = math.cos(th) * a0 + math.sin(th) * b0
-            top = 0.5 * (1.0 - float(a @ up))
-            q = float(pair_q[idx] + 0.3 * top)
-            for flip in (1.0, -1.0):
-                Rt = _frames(a[None], flip * y[None])[0]
-                T = np.eye(4)
-                T[:3, :3], T[:3, 3] = Rt, mid[idx]
-                rows_T.append(T)
-                rows_open.append(min(dist[idx] + 2.0 * config.clearance_m, gripper.stroke_m))
-                rows_w.append(dist[idx])
-                rows_c.append([P[i1[idx]], P[i2[idx]]])
-                rows_q.append(q)
-                reasons.append(
-                    f"antipodal ({target.family or 'mesh'} {label[idx]}): width {dist[idx] * 1e3:.0f} mm, "
-                    f"friction-cone margin {math.degrees(math.acos(min(c1[idx], c2[idx]))):.0f} of "
-                    f"{math.degrees(math.atan(config.friction_coefficient)):.0f} deg used, approach "
-                    f"{rot_deg:+.0f} deg from top-down, {off[idx] * 1e3:.0f} mm from the centre of mass"
-                )
-    m = len(rows_T)
+            text = (
+                f"antipodal ({target.family or 'mesh'} {label[idx]}): width {dist[idx] * 1e3:.0f} mm, "
+                f"friction-cone margin {used[k]:.0f} of {cone_deg:.0f} deg used, approach {rot_deg:+.0f} deg "
+                f"from top-down, {off[idx] * 1e3:.0f} mm from the centre of mass"
+            )
+            reasons += [text, text]
+    m = len(p)
     return Candidates(
-        np.array(rows_T),
-        np.array(rows_open),
-        np.array(rows_w),
-        np.array(rows_c),
-        np.clip(np.array(rows_q), 0.0, 1.0),
+        _T(R, p),
+        np.minimum(width + 2.0 * config.clearance_m, gripper.stroke_m),
+        width.copy(),
+        contacts.copy(),
+        np.clip(q, 0.0, 1.0),
         np.full(m, "antipodal", dtype=object),
         reasons,
         np.ones(m, dtype=bool),

@@ -130,7 +130,9 @@ class GraspConfig:
             collision-checked swept over that distance.
         lift_m: the retreat pose is the grasp lifted this far along the support normal (base +z without a
             support plane) [m].
-        clearance_m: free space left between each open pad and the object before closing [m].
+        clearance_m: free space left between each open pad and the object before closing, when the stroke
+            allows [m] (the opening is width + 2 clearance, at most the stroke).
+        min_clearance_m: the least such space for a grasp to be kept (narrower: rejected as "stroke") [m].
         palm_clearance_m: the palm stays this far from the object's extent along the approach [m].
         support_clearance_m: every gripper part stays this far above the support plane [m].
         friction_coefficient: pad-object friction used by the antipodal friction-cone test [-].
@@ -157,6 +159,7 @@ class GraspConfig:
     approach_offset_m: float = 0.10
     lift_m: float = 0.10
     clearance_m: float = 0.01
+    min_clearance_m: float = 0.004
     palm_clearance_m: float = 0.005
     support_clearance_m: float = 0.003
     friction_coefficient: float = 0.5
@@ -165,7 +168,7 @@ class GraspConfig:
     depth_steps_m: tuple[float, ...] = (0.0, 0.015)
     mesh_samples: int = 300
     antipodal_pairs: int = 60
-    antipodal_approaches_deg: tuple[float, ...] = (0.0, -30.0, 30.0, -60.0, 60.0)
+    antipodal_approaches_deg: tuple[float, ...] = (0.0, -45.0, 45.0, -90.0, 90.0)
     suction_grid: int = 3
     suction_safety_factor: float = 2.0
     voxel_size_m: float = 0.01
@@ -190,6 +193,7 @@ class GraspConfig:
         non_negative = {
             "lift_m": self.lift_m,
             "clearance_m": self.clearance_m,
+            "min_clearance_m": self.min_clearance_m,
             "palm_clearance_m": self.palm_clearance_m,
             "support_clearance_m": self.support_clearance_m,
             "target_margin_m": self.target_margin_m,

@@ -36,7 +36,7 @@ def test_box_grasps_are_antipodal_and_within_stroke():
         target = ObjectModel("box", Pose9D(R, centre, size))
         c = box_grasps(target, JAW, CONFIG, Plane.horizontal(-1.0))
         assert len(c) > 0
-        narrow = size + 2.0 * CONFIG.clearance_m <= JAW.stroke_m
+        narrow = size + 2.0 * CONFIG.min_clearance_m <= JAW.stroke_m
         kept = np.flatnonzero(c.pre_rejected == "")
         # Candidates exist for every axis narrow enough, and none for the others.
         assert bool(len(kept)) == bool(narrow.any())
@@ -102,7 +102,8 @@ def test_antipodal_pairs_in_friction_cone_and_family_region(family, r_in, r_out)
         u = (p2 - p1) / np.linalg.norm(p2 - p1)
         assert np.arccos(np.clip(_inward_normal(p1, centre, r_in, r_out, height) @ u, -1, 1)) <= cone
         assert np.arccos(np.clip(_inward_normal(p2, centre, r_in, r_out, height) @ -u, -1, 1)) <= cone
-        assert c.width_m[k] + 2 * CONFIG.clearance_m <= JAW.stroke_m + 1e-12
+        assert c.width_m[k] + 2 * CONFIG.min_clearance_m <= JAW.stroke_m + 1e-12
+        assert c.opening_m[k] <= JAW.stroke_m + 1e-12
         labels.add(c.reason[k].split(")")[0].split()[-1])
         if family == "bowl":  # by the rim: both contacts in the top band
             assert min(p1[2], p2[2]) >= height - max(0.15 * height, 0.015) - 1e-9
