@@ -62,6 +62,7 @@ class NoFeasibleGrasp(PromposeError):
     def __init__(self, rejected: dict[str, int], n_candidates: int, what: str = "grasp"):
         self.rejected = dict(rejected)
         self.n_candidates = int(n_candidates)
+        self.timings_ms: dict[str, float] = {}  # the planner's stage timings, when it sets them
         counts = ", ".join(f"{k}: {v}" for k, v in sorted(self.rejected.items(), key=lambda kv: -kv[1]))
         super().__init__(
             f"no feasible {what} among {self.n_candidates} candidates (rejected: {counts or 'none'})"

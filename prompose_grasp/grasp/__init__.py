@@ -2,8 +2,8 @@
 
 >>> from prompose_grasp.grasp import ObjectModel, Plane, plan_grasps  # doctest: +SKIP
 >>> robot = load_robot("ur5e", tcp_offset=ParallelJawGeometry().T_flange_tcp)  # doctest: +SKIP
->>> target = ObjectModel("mug", estimate.pose.transformed(T_base_cam), mesh_base, family="mug")  # doctest: +SKIP
->>> plan = plan_grasps(target, robot, "parallel_jaw", obstacles, Plane.horizontal(0.0), points_base)  # doctest: +SKIP
+>>> target = ObjectModel("mug", pose_cam.transformed(T_base_cam), mesh_base, family="mug")  # doctest: +SKIP
+>>> plan = plan_grasps(target, robot, "parallel_jaw", others, Plane.horizontal(0.0), pts)  # doctest: +SKIP
 >>> plan.best.T_base_tcp, plan.best.q, plan.rejected  # doctest: +SKIP
 """
 

@@ -219,7 +219,7 @@ def ik_nearest_batch(
     q_out[found] = shifted[found, pick[found]]
     # The unpicked branches are left unverified; the picked ones that failed are marked NaN.
     shifted = np.where(ok[:, :, None], shifted, np.nan)
-    return q_out, found, shifted
+    return q_out, np.asarray(found, dtype=bool), shifted
 
 
 def _branches_unverified(spec: URSpec, T: np.ndarray, q6_if_singular) -> tuple[np.ndarray, np.ndarray]:

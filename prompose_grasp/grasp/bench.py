@@ -54,16 +54,21 @@ def _support_fixtures(world, T_base_world: np.ndarray) -> list[ObjectModel]:
         T = T_base_world @ s.T_world_surface
         hx, hy = (float(v) for v in s.half_extents_xy_m)
         slab = T[:3, :3] @ np.array([0.0, 0.0, -_FIXTURE_SLAB_M / 2]) + T[:3, 3]
-        out.append(
-            ObjectModel(f"{s.name}_top", Pose9D(T[:3, :3], slab, [2 * hx, 2 * hy, _FIXTURE_SLAB_M]), kind="fixture")
-        )
+        extents = np.array([2 * hx, 2 * hy, _FIXTURE_SLAB_M])
+        out.append(ObjectModel(f"{s.name}_top", Pose9D(T[:3, :3], slab, extents), kind="fixture"))
         if s.wall_height_m > 0:
             w, h = 0.01, float(s.wall_height_m)
             for k, (dx, dy, sx, sy) in enumerate(
-                ((hx + w / 2, 0, w, 2 * hy), (-hx - w / 2, 0, w, 2 * hy), (0, hy + w / 2, 2 * hx, w), (0, -hy - w / 2, 2 * hx, w))
-            ):  # fmt: skip
+                (
+                    (hx + w / 2, 0, w, 2 * hy),
+                    (-hx - w / 2, 0, w, 2 * hy),
+                    (0, hy + w / 2, 2 * hx, w),
+                    (0, -hy - w / 2, 2 * hx, w),
+                )
+            ):
                 c = T[:3, :3] @ np.array([dx, dy, h / 2]) + T[:3, 3]
-                out.append(ObjectModel(f"{s.name}_wall{k}", Pose9D(T[:3, :3], c, [sx, sy, h]), kind="fixture"))
+                wall = Pose9D(T[:3, :3], c, np.array([sx, sy, h]))
+                out.append(ObjectModel(f"{s.name}_wall{k}", wall, kind="fixture"))
     return out
 
 
@@ -110,8 +115,12 @@ def run_scene(name: str, repeat: int, seed: int) -> dict:
     fixtures = _support_fixtures(world, T_base_world)
     points = _observed_points(world, T_base_world, seed)
     cfg = GraspConfig(max_candidates=500, suction_grid=5 if kind == "suction" else 3)
-    cfg_all = GraspConfig(max_candidates=500, suction_grid=cfg.suction_grid, exhaustive=True, max_grasps=10_000)
-    rows, totals, n_total = [], Counter(), 0
+    cfg_all = GraspConfig(
+        max_candidates=500, suction_grid=cfg.suction_grid, exhaustive=True, max_grasps=10_000
+    )
+    rows: list[dict] = []
+    totals: Counter[str] = Counter()
+    n_total = 0
     for target in objects:
         others = [o for o in objects if o is not target] + fixtures
         bottom = float(np.min(target.pose.corners()[:, 2]))
@@ -119,19 +128,21 @@ def run_scene(name: str, repeat: int, seed: int) -> dict:
         t = time.perf_counter()
         scene = build_scene(target, robot, gripper, others, support, points, q_home, cfg)
         scene_ms = (time.perf_counter() - t) * 1e3
-        core, full, n_grasps = [], [], 0
+        core, full, cpu, n_grasps = [], [], [], 0
         for _ in range(repeat):
-            t = time.perf_counter()
+            t, c0 = time.perf_counter(), time.process_time()
             try:
                 plan = plan_grasps(target, robot, gripper, q_seed=q_home, config=cfg, scene=scene)
                 timings, n_cand, n_grasps = plan.timings_ms, plan.n_candidates, len(plan)
             except NoFeasibleGrasp as err:
-                timings, n_cand = getattr(err, "timings_ms", {}), err.n_candidates
+                timings, n_cand = err.timings_ms, err.n_candidates
+            cpu.append((time.process_time() - c0) * 1e3)
             full.append((time.perf_counter() - t) * 1e3)
-            if timings:
-                core.append(sum(timings[k] for k in ("generate", "filters", "ik", "gripper_collision")))
+            core.append(sum(timings.get(k, 0.0) for k in ("generate", "filters", "ik", "gripper_collision")))
         try:
-            rejected = plan_grasps(target, robot, gripper, q_seed=q_home, config=cfg_all, scene=scene).rejected
+            rejected = plan_grasps(
+                target, robot, gripper, q_seed=q_home, config=cfg_all, scene=scene
+            ).rejected
         except NoFeasibleGrasp as err:
             rejected = err.rejected
         totals.update(rejected)
@@ -143,8 +154,9 @@ def run_scene(name: str, repeat: int, seed: int) -> dict:
                 "candidates": n_cand,
                 "grasps": n_grasps,
                 "scene_ms": scene_ms,
-                "core_ms": statistics.median(core) if core else float("nan"),
+                "core_ms": statistics.median(core),
                 "plan_ms": statistics.median(full),
+                "plan_cpu_ms": statistics.median(cpu),
                 "rejected": dict(rejected),
                 "voxels": len(scene.voxel_centres),
             }
@@ -174,11 +186,13 @@ def main(argv: list[str] | None = None) -> None:
         results.append(res)
         print(f"\n{name} ({res['robot']}, {res['gripper']})")
         print(f"{'target':<12} {'family':<8} {'cand':>5} {'grasps':>6} {'voxels':>6} {'scene ms':>9} "
-              f"{'core ms':>8} {'plan ms':>8}")  # fmt: skip
+              f"{'core ms':>8} {'plan ms':>8} {'plan CPU ms':>11}  top rejections")  # fmt: skip
         for r in res["objects"]:
+            top = sorted(r["rejected"].items(), key=lambda kv: -kv[1])[:3]
             print(
                 f"{r['target']:<12} {r['family']:<8} {r['candidates']:>5} {r['grasps']:>6} {r['voxels']:>6} "
-                f"{r['scene_ms']:>9.1f} {r['core_ms']:>8.1f} {r['plan_ms']:>8.1f}"
+                f"{r['scene_ms']:>9.1f} {r['core_ms']:>8.1f} {r['plan_ms']:>8.1f} {r['plan_cpu_ms']:>11.1f}  "
+                + ", ".join(f"{k} {v}" for k, v in top)
             )
         fr = ", ".join(f"{k} {100 * v:.1f} %" for k, v in res["rejected_fraction"].items())
         print(f"rejected (of {res['candidates']} candidates, exhaustive): {fr}")

@@ -230,8 +230,8 @@ class SuctionCupGeometry:
     kind = "suction"
 
     def __post_init__(self) -> None:
-        values = (self.cup_radius_m, self.cup_height_m, self.stem_length_m, self.stem_radius_m)
-        values += (self.max_force_n,)
+        values = [self.cup_radius_m, self.cup_height_m, self.stem_length_m, self.stem_radius_m]
+        values.append(self.max_force_n)
         if not all(math.isfinite(v) and v > 0 for v in values):
             raise InvalidInputError(f"SuctionCupGeometry dimensions must be finite and > 0, got {self}")
 

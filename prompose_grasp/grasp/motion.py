@@ -1,5 +1,5 @@
-"""Pick-and-place motion: pre-grasp -> grasp -> lift -> transfer -> pre-place -> place -> retreat, as joint-space
-segments within the limits, collision-checked along the path.
+"""Pick-and-place motion: pre-grasp -> grasp -> lift -> transfer -> pre-place -> place -> retreat, as joint
+space segments within the limits, collision-checked along the path.
 
 Straight tcp moves (approach, lift, descend, retreat) are joint paths through closed-form IK waypoints on the
 line, each the solution nearest the previous (the same branch); free moves (to the pre-grasp, the transfer)
@@ -18,6 +18,7 @@ may touch it only at the grasp: the approach checks the fingers against it with 
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -186,7 +187,7 @@ def check_path(
     r = reach_bounds(robot, tool)
     mover = _Mover(gripper, opening_m, held, T_tcp_obj, cfg.contact_margin_m)
     samples = [Q[0][None]]
-    for q0, q1 in zip(Q[:-1], Q[1:]):
+    for q0, q1 in itertools.pairwise(Q):
         samples.append(_samples(q0, q1, r, cfg.resolution_m)[1:])
     S = np.vstack(samples)
     for q in S:
@@ -219,7 +220,7 @@ def _line(robot, T_from, T_to, q_start, T_tcp_flange, step_m) -> np.ndarray | No
 def _timed(robot: RobotModel, W: np.ndarray, cfg: MotionConfig) -> JointTrajectory:
     vmax = robot.max_joint_speed * cfg.speed_scale
     t_all, q_all, t0 = [], [], 0.0
-    for q0, q1 in zip(W[:-1], W[1:]):
+    for q0, q1 in itertools.pairwise(W):
         seg = joint_trajectory(q0, q1, vmax, cfg.max_accel_rad_s2)
         t_all.append(seg.t_s + t0)
         q_all.append(seg.q)
@@ -311,7 +312,7 @@ def plan_pick_place(
 
 def _free(robot, scene, q0, q1, grip, opening, held, T_tcp_obj, cfg, T_tcp_flange, holding) -> np.ndarray:
     """A free move: the joint line q0 -> q1, or, when it collides, a detour: straight up from q0, a joint line
-    across, straight down to q1, at 1, 2, 3 or 4 x `safe_height_m` above the higher end (first that is free)."""
+    across, straight down to q1, at 1, 2, 3 or 4 x `safe_height_m` above the higher end (the first free)."""
     held = held if holding else None
     W = np.array([q0, q1])
     _, hit = check_path(robot, scene, W, grip, opening, not holding, held, T_tcp_obj, cfg)
@@ -335,4 +336,6 @@ def _free(robot, scene, q0, q1, grip, opening, held, T_tcp_obj, cfg, T_tcp_flang
         if detour_hit is None:
             return W
     name = "transfer" if holding else "to_pregrasp"
-    raise NoFeasibleMotion(name, f"blocked ({hit.reason}: {hit.name}); no detour above it is free and reachable")
+    raise NoFeasibleMotion(
+        name, f"blocked ({hit.reason}: {hit.name}); no detour above it is free and reachable"
+    )

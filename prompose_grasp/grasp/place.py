@@ -249,7 +249,7 @@ def plan_place(
     lower, upper = robot.joint_limits
     halves, centres_tcp = gripper_hulls(grip, np.array([grasp.opening_m]), cfg.approach_m)
     shrink = np.maximum(size / 2.0 - cfg.contact_margin_m, 1e-4)
-    for slot, centre, yaw in candidates:
+    for place_slot, centre, yaw in candidates:
         T_obj = T_surf @ make_T(_rz(yaw) @ R_surf_obj, centre)
         T_tcp = T_obj @ T_obj_tcp
         T_pre = T_tcp.copy()
@@ -289,14 +289,18 @@ def plan_place(
         if q_ok is None:
             rejected[why] += 1
             continue
-        where = f"slot row {slot[0]} col {slot[1]} layer {slot[2]}" if slot else f"at {centre[:2].round(3)} m"
+        where = (
+            f"slot row {place_slot[0]} col {place_slot[1]} layer {place_slot[2]}"
+            if place_slot
+            else f"at {centre[:2].round(3)} m"
+        )
         return PlacePose(
             T_base_obj=T_obj,
             T_base_tcp=T_tcp,
             T_base_preplace=T_pre,
             T_base_retreat=T_ret,
             q=q_ok,
-            slot=slot,
+            slot=place_slot,
             reason=f"{target.kind}: {where} of the surface frame, yaw {math.degrees(yaw):.0f} deg",
         )
     raise NoFeasiblePlace(dict(rejected), len(candidates))

@@ -15,8 +15,8 @@ Stages, each on the survivors of the one before (a candidate counts once, for th
    query for all candidates;
 5. ranking by score = quality - `joint_distance_weight` x joint distance from the seed [rad];
 6. "ik_approach": the pre-grasp or the retreat pose has no solution on the grasp's branch (within 1 rad of
-   it); "arm_collision": the arm's link capsules touch the scene at every in-limit branch of the grasp (the
-   one nearest the seed is tried first). This runs in rank order, in chunks, until `max_grasps` grasps
+   it); "arm_collision": the arm's link capsules touch the scene at the `arm_branches` in-limit branches
+   of the grasp nearest the seed. This runs in rank order, in chunks, until `max_grasps` grasps
    passed (over all of them with `exhaustive`).
 
 Raises `NoFeasibleGrasp` with the per-reason counts when nothing passes.
@@ -126,8 +126,9 @@ def robot_self_capsules(
     """The arm's capsules at q plus one capsule around the gripper (flange to tcp, radius of its widest part),
     in `base`: where the camera sees the robot itself."""
     T_flange = robot.fk(q)
-    lo, hi = np.min([b[0] for b in gripper.hull_boxes().values()], axis=0), np.max(
-        [b[1] for b in gripper.hull_boxes().values()], axis=0
+    lo, hi = (
+        np.min([b[0] for b in gripper.hull_boxes().values()], axis=0),
+        np.max([b[1] for b in gripper.hull_boxes().values()], axis=0),
     )
     radius = float(np.linalg.norm(np.maximum(np.abs(lo[:2]), np.abs(hi[:2]))))
     tip = (T_flange @ gripper.T_flange_tcp)[:3, 3]
@@ -144,7 +145,7 @@ def build_scene(
     q_robot: ArrayLike | None = None,
     config: GraspConfig | None = None,
 ) -> CollisionScene:
-    """The `CollisionScene` `plan_grasps` builds: points cropped to the arm's reach (+0.3 m), without the robot
+    """The `CollisionScene` `plan_grasps` builds: points cropped to the arm's reach + 0.3 m, without the robot
     itself at `q_robot` (the configuration it had when the points were taken), the target's and the support's
     points, and the points already explained by obstacles."""
     cfg = config or GraspConfig()
@@ -293,7 +294,7 @@ def plan_grasps(
                 status[i] = "ik_approach"
                 continue
             q_ok = None
-            for q in _branch_order(q_all[i], branches[i]):
+            for q in _branch_order(q_all[i], branches[i])[: cfg.arm_branches]:
                 if q is not q_all[i] and not _verified(robot, q, T_grasp[r] @ T_tcp_flange):
                     continue
                 if scene.arm_hit(robot, q) is None:
@@ -323,7 +324,9 @@ def plan_grasps(
     timings["total"] = (time.perf_counter() - t0) * 1e3
     rejected.update(s for s in status if s)
     if not grasps:
-        raise NoFeasibleGrasp(dict(rejected), n)
+        err = NoFeasibleGrasp(dict(rejected), n)
+        err.timings_ms = timings
+        raise err
     log.debug("plan_grasps: %d grasps of %d candidates; rejected %s", len(grasps), n, dict(rejected))
     return GraspPlan(tuple(grasps), dict(rejected), n, n_unchecked, timings)
 
@@ -331,7 +334,7 @@ def plan_grasps(
 def _target_points_inside(
     target: ObjectModel, T: np.ndarray, centres_tcp: np.ndarray, halves: list[tuple[float, float, float]]
 ) -> np.ndarray:
-    """(N,) True where a vertex of the target (its mesh, at most 256 of them evenly picked, or its box corners)
+    """(N,) True where a vertex of the target (its mesh, at most 256 evenly picked, or its box corners)
     lies inside one of the gripper boxes of pose n."""
     if target.mesh is not None:
         V = np.asarray(target.mesh.vertices, dtype=np.float64)

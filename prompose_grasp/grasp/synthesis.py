@@ -150,7 +150,7 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _frames(approach: np.ndarray, closing: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) rotations with columns x = y cross z, y = closing, z = approach (both (N, 3), orthonormal)."""
+    """(N, 3, 3) rotations, columns x = y cross z, y = closing, z = approach (both (N, 3), unit, normal)."""
     x = cross(closing, approach)
     return np.stack([x, closing, approach], axis=-1)
 
@@ -206,7 +206,7 @@ def box_grasps(
     D = np.broadcast_to(depth0[:, None, None] - steps[None, :, None], (len(combos), len(steps), n_s))
     Sl = np.broadcast_to(half_slide[:, None, None] * unit[None, None, :], D.shape)
     P = c + Sl[..., None] * b[:, None, None, :] - (H[:, None, None] - D)[..., None] * a[:, None, None, :]
-    # The pads must press on the faces: the tcp (the pads' centre) inside the face rectangle (a steep tilt on a
+    # The pads must press on the faces: the tcp (the pads' centre) inside the face rectangle (a steep tilt on
     # thin box can put it outside), deep enough for 3/4 of the pad, and each slide position once.
     lj = np.abs(np.sum((P - c) * Rj[:, None, None, :], axis=-1))
     lk = np.abs(np.sum((P - c) * Rk[:, None, None, :], axis=-1))
@@ -241,7 +241,8 @@ def box_grasps(
     for r in range(m):
         k = ci[r]
         text = (
-            f"box: close along obj {_AXES[I[k]]} ({width[r] * 1e3:.0f} mm, stroke {gripper.stroke_m * 1e3:.0f} "
+            f"box: close along obj {_AXES[I[k]]} ({width[r] * 1e3:.0f} mm, stroke "
+            f"{gripper.stroke_m * 1e3:.0f} "
             f"mm), approach {'-' if S[k] > 0 else '+'}obj {_AXES[J[k]]} tilted {TILT[k]:+.0f} deg, "
             f"{depth[r] * 1e3:.0f} mm deep, {off[r] * 1e3:.0f} mm from the centre of mass"
         )
@@ -325,7 +326,7 @@ def antipodal_grasps(
     keep = np.argsort(-pair_q, kind="stable")[: config.antipodal_pairs]
     up = _up(support)
     y = u[keep]  # (K, 3) closing lines
-    # The approach nearest top-down, perpendicular to the closing line (any perpendicular when it is vertical).
+    # The approach nearest top-down, normal to the closing line (any normal one when the line is vertical).
     a0 = -up[None, :] - (y @ -up)[:, None] * y
     small = np.linalg.norm(a0, axis=1) < 1e-6
     if np.any(small):
@@ -372,29 +373,36 @@ def antipodal_grasps(
     )
 
 
-def _flat_under_cup(
+def _flat_under_cups(
     samples: np.ndarray,
     sample_normals: np.ndarray,
-    centre: np.ndarray,
+    face_point: np.ndarray,
     normal: np.ndarray,
+    centres: np.ndarray,
     radius: float,
     max_angle_deg: float,
     spacing: float,
-) -> bool:
-    """True when mesh samples on the face plane (within 3 mm, normals within the seal angle) cover the cup's
-    rim (16 points) and centre, each within `spacing` of a flat sample."""
-    plane_dist = np.abs((samples - centre) @ normal)
-    flat = (plane_dist <= 0.003) & (sample_normals @ normal >= math.cos(math.radians(max_angle_deg)))
+) -> np.ndarray:
+    """(G,) True where the cup centred at each of `centres` (G, 3) on the face plane (through `face_point`,
+    normal `normal`) sits on flat mesh: mesh samples within 3 mm of the plane with normals within the seal
+    angle cover the cup's centre and its rim (16 points), each probe within `spacing` of such a sample."""
+    from scipy.spatial import cKDTree
+
+    flat = (np.abs((samples - face_point) @ normal) <= 0.003) & (
+        sample_normals @ normal >= math.cos(math.radians(max_angle_deg))
+    )
     if not np.any(flat):
-        return False
-    e1 = cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+        return np.zeros(len(centres), dtype=bool)
+    e1 = cross(normal, np.array([1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0]))
     e1 /= np.linalg.norm(e1)
     e2 = cross(normal, e1)
     ang = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
-    ring = centre + radius * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2)
-    probes = np.vstack([centre[None], ring])
-    d = np.linalg.norm(probes[:, None, :] - samples[flat][None, :, :], axis=-1).min(axis=1)
-    return bool(np.all(d <= spacing))
+    ring = np.vstack(
+        [np.zeros(3), radius * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2)]
+    )  # (17, 3)
+    probes = (centres[:, None, :] + ring[None]).reshape(-1, 3)
+    d, _ = cKDTree(samples[flat]).query(probes)
+    return np.all(d.reshape(len(centres), -1) <= spacing, axis=1)
 
 
 def suction_grasps(
@@ -435,45 +443,47 @@ def suction_grasps(
             grid = np.vstack([com_proj[None], np.stack([us.ravel(), vs.ravel()], axis=1)])
             grid = np.unique(np.round(grid, 9), axis=0)
             grid = grid[np.argsort(np.linalg.norm(grid - com_proj, axis=1), kind="stable")][: g * g]
-            for du, dv in grid:
-                p = face_c + du * R[:, others[0]] + dv * R[:, others[1]]
-                if samples is not None:
-                    flat_ok = _flat_under_cup(samples, normals, p, nrm, r, cup.max_face_angle_deg, spacing)
-                else:
-                    flat_ok = True
-                lateral = com - p
-                lateral = float(np.linalg.norm(lateral - (lateral @ nrm) * nrm))
-                face_half_diag = math.hypot(size[others[0]], size[others[1]]) / 2.0
-                a = -nrm
-                top = 0.5 * (1.0 - float(a @ up))
-                q = (
-                    0.5 * top
-                    + 0.4 * max(0.0, 1.0 - lateral / max(face_half_diag, 1e-9))
-                    + 0.1 * min(1.0, (2.0 * min(size[others[0]], size[others[1]])) / (8.0 * r))
+            pts = face_c + grid[:, :1] * R[:, others[0]] + grid[:, 1:] * R[:, others[1]]  # (G, 3)
+            if samples is not None and normals is not None:
+                flat_ok = _flat_under_cups(
+                    samples, normals, face_c, nrm, pts, r, cup.max_face_angle_deg, spacing
                 )
-                payload = ""
-                if target.mass_kg is not None:
-                    sideways = float(a @ up) > -0.7  # not top-down: the load is a shear on the lip
-                    limit = cup.max_payload_kg(
-                        config.suction_safety_factor, lateral_g=1.0 if sideways else 0.0
-                    )
-                    if target.mass_kg > limit:
-                        payload = "payload"
-                for yaw in (0.0, 0.5 * math.pi, math.pi, 1.5 * math.pi):
-                    x0 = R[:, others[0]]
-                    x = math.cos(yaw) * x0 + math.sin(yaw) * cross(a, x0)
-                    Rt = np.stack([x, cross(a, x), a], axis=1)
+            else:
+                flat_ok = np.ones(len(pts), dtype=bool)
+            lat = com - pts
+            lateral = np.linalg.norm(lat - (lat @ nrm)[:, None] * nrm, axis=1)
+            face_half_diag = math.hypot(size[others[0]], size[others[1]]) / 2.0
+            a = -nrm
+            top = 0.5 * (1.0 - float(a @ up))
+            q = (
+                0.5 * top
+                + 0.4 * np.clip(1.0 - lateral / max(face_half_diag, 1e-9), 0.0, 1.0)
+                + 0.1 * min(1.0, (2.0 * min(size[others[0]], size[others[1]])) / (8.0 * r))
+            )
+            payload = ""
+            if target.mass_kg is not None:
+                sideways = float(a @ up) > -0.7  # not top-down: the load is a shear on the lip
+                limit = cup.max_payload_kg(config.suction_safety_factor, lateral_g=1.0 if sideways else 0.0)
+                if target.mass_kg > limit:
+                    payload = "payload"
+            mass = "mass unknown" if target.mass_kg is None else f"{target.mass_kg:.2f} kg"
+            tilt = math.degrees(math.acos(float(np.clip(-a @ up, -1, 1))))
+            x0 = R[:, others[0]]
+            for yaw in (0.0, 0.5 * math.pi, math.pi, 1.5 * math.pi):
+                x = math.cos(yaw) * x0 + math.sin(yaw) * cross(a, x0)
+                Rt = np.stack([x, cross(a, x), a], axis=1)
+                for g_ in range(len(pts)):
                     T = np.eye(4)
-                    T[:3, :3], T[:3, 3] = Rt, p
+                    T[:3, :3], T[:3, 3] = Rt, pts[g_]
                     rows_T.append(T)
-                    rows_c.append([p, p])
-                    rows_q.append(q)
-                    pre.append(payload or ("" if flat_ok else "suction_not_flat"))
-                    mass = "mass unknown" if target.mass_kg is None else f"{target.mass_kg:.2f} kg"
+                    rows_c.append([pts[g_], pts[g_]])
+                    rows_q.append(q[g_])
+                    pre.append(payload or ("" if flat_ok[g_] else "suction_not_flat"))
                     reasons.append(
-                        f"suction: obj {'+' if s > 0 else '-'}{_AXES[m]} face, {lateral * 1e3:.0f} mm from the "
-                        f"centre of mass, approach {math.degrees(math.acos(np.clip(-a @ up, -1, 1))):.0f} deg "
-                        f"from top-down, {mass} (holds {cup.max_force_n:.0f} N)"
+                        f"suction: obj {'+' if s > 0 else '-'}{_AXES[m]} face, "
+                        f"{lateral[g_] * 1e3:.0f} mm from "
+                        f"the centre of mass, approach {tilt:.0f} deg from top-down, {mass} "
+                        f"(holds {cup.max_force_n:.0f} N)"
                     )
     n = len(rows_T)
     if n == 0:

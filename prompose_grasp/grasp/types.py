@@ -151,6 +151,7 @@ class GraspConfig:
         support_band_m: observed points lower than this above the support plane are the support itself [m].
         max_candidates: candidates kept (best quality first) before checking.
         max_grasps: feasible grasps returned; the arm-link check runs in rank order until this many passed.
+        arm_branches: IK branches tried (nearest the seed first) before a candidate is rejected for the arm.
         exhaustive: check the arm links of every candidate (slower; exact per-reason counts).
         joint_distance_weight: ranking penalty per radian of joint distance from the seed (score units).
         seed: RNG seed of the surface sampling.
@@ -176,6 +177,7 @@ class GraspConfig:
     support_band_m: float = 0.01
     max_candidates: int = 500
     max_grasps: int = 10
+    arm_branches: int = 2
     exhaustive: bool = False
     joint_distance_weight: float = 0.01
     seed: int = 0
@@ -203,8 +205,8 @@ class GraspConfig:
         for name, value in non_negative.items():
             if not (math.isfinite(value) and value >= 0):
                 raise InvalidInputError(f"GraspConfig.{name} must be finite and >= 0, got {value!r}")
-        counts = ("n_slide", "mesh_samples", "antipodal_pairs", "suction_grid", "max_candidates")
-        counts += ("max_grasps",)
+        counts = ["n_slide", "mesh_samples", "antipodal_pairs", "suction_grid", "max_candidates"]
+        counts += ["max_grasps", "arm_branches"]
         for name in counts:
             if int(getattr(self, name)) < 1:
                 raise InvalidInputError(f"GraspConfig.{name} must be >= 1, got {getattr(self, name)!r}")

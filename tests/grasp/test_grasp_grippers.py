@@ -1,4 +1,4 @@
-"""Gripper geometry: the library's parts are the sim's geoms, and the tcp convention matches the robot layer."""
+"""Gripper geometry: the library's parts are the sim's geoms; the tcp convention matches the robot layer."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import mujoco
 import numpy as np
 import pytest
 
+from prompose_grasp.errors import InvalidInputError, UnknownNameError
 from prompose_grasp.geometry.se3 import make_T
 from prompose_grasp.grasp import GRIPPER_TCP, ParallelJawGeometry, SuctionCupGeometry, get_gripper
 from prompose_grasp.grasp.grippers import GRAVITY_M_S2
-from prompose_grasp.errors import InvalidInputError, UnknownNameError
 from prompose_grasp.robot import load_robot
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -53,9 +53,10 @@ def test_parts_are_the_sims_geoms(kind):
         np.testing.assert_allclose(size, np.asarray(part.size_m)[: len(size)], atol=1e-12)
 
 
-def test_tcp_is_the_pad_centre_and_the_robot_tcp(rng=np.random.default_rng(7)):
+def test_tcp_is_the_pad_centre_and_the_robot_tcp():
     """load_robot(tcp_offset=T_flange_tcp).fk_tcp(q) = the centre between the sim's pad faces at any opening,
     and = the robot layer's MuJoCo `tcp` site."""
+    rng = np.random.default_rng(7)
     g = ParallelJawGeometry()
     robot = load_robot("ur5e", tcp_offset=g.T_flange_tcp)
     model = _sim_model("parallel_jaw")
@@ -70,14 +71,18 @@ def test_tcp_is_the_pad_centre_and_the_robot_tcp(rng=np.random.default_rng(7)):
         faces = []
         for side, sign in (("left", 1.0), ("right", -1.0)):
             gid = model.geom(f"pad_{side}").id
-            centre = data.geom_xpos[gid] - sign * model.geom_size[gid][1] * data.geom_xmat[gid].reshape(3, 3)[:, 1]
+            centre = (
+                data.geom_xpos[gid] - sign * model.geom_size[gid][1] * data.geom_xmat[gid].reshape(3, 3)[:, 1]
+            )
             faces.append(centre)
         assert math.isclose(np.linalg.norm(faces[0] - faces[1]), opening, abs_tol=1e-12)  # width = opening
         pad_centre_flange = 0.5 * (faces[0] + faces[1])
         T_base_tcp = robot.fk(q) @ make_T(np.eye(3), pad_centre_flange)
         np.testing.assert_allclose(robot.fk_tcp(q), T_base_tcp, atol=1e-12)
         np.testing.assert_allclose(robot.fk_mujoco(q, "tcp"), robot.fk_tcp(q), atol=1e-9)  # MuJoCo float path
-        np.testing.assert_allclose(g.pad_centres_tcp(opening), (np.array(faces) - g.T_flange_tcp[:3, 3]), atol=1e-12)
+        np.testing.assert_allclose(
+            g.pad_centres_tcp(opening), (np.array(faces) - g.T_flange_tcp[:3, 3]), atol=1e-12
+        )
 
 
 def test_suction_tcp_is_the_cup_face_centre():

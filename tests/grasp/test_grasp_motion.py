@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -52,7 +54,14 @@ def wall_motion():
 
 def test_segments_in_order_within_limits_and_clear_of_the_wall(wall_motion):
     box, wall, grasp, place, _, _, motion = wall_motion
-    assert [s.name for s in motion.segments] == ["to_pregrasp", "approach", "lift", "transfer", "descend", "retreat"]
+    assert [s.name for s in motion.segments] == [
+        "to_pregrasp",
+        "approach",
+        "lift",
+        "transfer",
+        "descend",
+        "retreat",
+    ]
     lower, upper = ROBOT.joint_limits
     wall_grown = Pose9D(wall.pose.R, wall.pose.t, wall.pose.size)
     for seg in motion.segments:
@@ -61,14 +70,18 @@ def test_segments_in_order_within_limits_and_clear_of_the_wall(wall_motion):
         for q in seg.path:
             T = ROBOT.fk_tcp(q)
             # Independent check: the tcp, the flange and every arm capsule end stay out of the wall.
-            pts = [T[:3, 3], ROBOT.fk(q)[:3, 3]] + [p for _, p0, p1, _ in ROBOT.capsules_in_base(q) for p in (p0, p1)]
+            pts = [T[:3, 3], ROBOT.fk(q)[:3, 3]] + [
+                p for _, p0, p1, _ in ROBOT.capsules_in_base(q) for p in (p0, p1)
+            ]
             assert not np.any(_inside_box(np.array(pts), wall_grown)), seg.name
         np.testing.assert_allclose(seg.trajectory.q[-1], seg.waypoints[-1], atol=1e-12)  # timed to the end
     names = [s.name for s in motion.segments]
-    for a, b in zip(names[:-1], names[1:]):
+    for a, b in itertools.pairwise(names):
         np.testing.assert_allclose(motion.segment(a).waypoints[-1], motion.segment(b).waypoints[0], atol=1e-9)
     np.testing.assert_allclose(motion.segment("approach").waypoints[-1], grasp.q, atol=1e-12)
-    np.testing.assert_allclose(ROBOT.fk_tcp(motion.segment("descend").waypoints[-1]), place.T_base_tcp, atol=1e-9)
+    np.testing.assert_allclose(
+        ROBOT.fk_tcp(motion.segment("descend").waypoints[-1]), place.T_base_tcp, atol=1e-9
+    )
     # The held box goes over the wall: its lowest point on the transfer clears the wall's top (30 cm).
     T_tcp_obj = np.linalg.inv(grasp.T_base_tcp) @ box.pose.to_matrix()
     transfer = motion.segment("transfer").path
@@ -78,11 +91,13 @@ def test_segments_in_order_within_limits_and_clear_of_the_wall(wall_motion):
 
 
 def test_direct_transfer_would_hit_the_wall_and_resolution_holds(wall_motion):
-    box, wall, grasp, place, _, scene_held, motion = wall_motion
+    box, _wall, grasp, _place, _, scene_held, motion = wall_motion
     T_tcp_obj = np.linalg.inv(grasp.T_base_tcp) @ box.pose.to_matrix()
     lift_end = motion.segment("lift").waypoints[-1]
     preplace = motion.segment("descend").waypoints[0]
-    _, hit = check_path(ROBOT, scene_held, np.array([lift_end, preplace]), JAW, grasp.opening_m, False, box, T_tcp_obj)
+    _, hit = check_path(
+        ROBOT, scene_held, np.array([lift_end, preplace]), JAW, grasp.opening_m, False, box, T_tcp_obj
+    )
     assert hit is not None and hit.name.startswith("wall")
     # Between checked samples no point of the tcp / flange moves more than the resolution (5 mm).
     res = MotionConfig().resolution_m
@@ -99,7 +114,9 @@ def test_place_on_surface_rests_the_box_inside(wall_motion):
     corners = Pose9D(place.T_base_obj[:3, :3], place.T_base_obj[:3, 3], box.pose.size).corners()
     corners_s = (corners - T_surf[:3, 3]) @ T_surf[:3, :3]
     assert np.all(np.abs(corners_s[:, :2]) <= target.half_extents_xy_m + 1e-12)
-    np.testing.assert_allclose(place.T_base_preplace[:3, 3], place.T_base_tcp[:3, 3] + [0, 0, 0.1], atol=1e-12)
+    np.testing.assert_allclose(
+        place.T_base_preplace[:3, 3], place.T_base_tcp[:3, 3] + [0, 0, 0.1], atol=1e-12
+    )
 
 
 def test_pallet_slots_fill_in_order():
@@ -108,13 +125,15 @@ def test_pallet_slots_fill_in_order():
     size = np.array([0.3, 0.2, 0.2])  # obj x, y (up), z
     carton = ObjectModel("carton", Pose9D(R_UP, [0.0, -0.7, 0.1], size), family="carton")
     grasp = plan_grasps(carton, robot, cup, [], TABLE, None, HOME_Q).best
-    pallet = PlaceTarget("pallet", make_T(np.eye(3), [0.0, 0.7, 0.1]), [0.4, 0.3], pattern=PalletPattern(2, 2, 2, 0.01))
+    pallet = PlaceTarget(
+        "pallet", make_T(np.eye(3), [0.0, 0.7, 0.1]), [0.4, 0.3], pattern=PalletPattern(2, 2, 2, 0.01)
+    )
     slots = pallet_slots(pallet, np.array([0.15, 0.1]), 0.1)
     assert [s for s, _ in slots][:5] == [(0, 0, 0), (0, 1, 0), (1, 0, 0), (1, 1, 0), (0, 0, 1)]
     np.testing.assert_allclose(slots[0][1], [-0.155, -0.105, 0.1], atol=1e-12)  # pitch = carton + gap
     first = plan_place(carton, grasp, pallet, robot, cup)
     assert first.slot == (0, 0, 0)
-    # With slot (0, 0, 0) taken by an earlier carton, the next goes to (0, 1, 0); a second layer needs support.
+    # Slot (0, 0, 0) taken by an earlier carton: the next is (0, 1, 0); a second layer needs support below.
     T_s = pallet.T_base_surface
     placed = [ObjectModel("c0", Pose9D(R_UP, T_s[:3, 3] + slots[0][1], size), family="carton")]
     second = plan_place(carton, grasp, pallet, robot, cup, placed)

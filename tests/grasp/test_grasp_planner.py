@@ -39,7 +39,9 @@ def test_feasible_grasps_reach_their_pose_and_clear_the_table():
         np.testing.assert_allclose(ROBOT.fk_tcp(g.q), g.T_base_tcp, atol=1e-9)  # the IK reaches it
         lower, upper = ROBOT.joint_limits
         assert np.all(g.q >= lower) and np.all(g.q <= upper)
-        np.testing.assert_allclose(g.T_base_pregrasp[:3, 3], g.T_base_tcp[:3, 3] - 0.10 * g.approach, atol=1e-12)
+        np.testing.assert_allclose(
+            g.T_base_pregrasp[:3, 3], g.T_base_tcp[:3, 3] - 0.10 * g.approach, atol=1e-12
+        )
         np.testing.assert_allclose(g.T_base_retreat[:3, 3], g.T_base_tcp[:3, 3] + [0, 0, 0.10], atol=1e-12)
         # Every gripper part (the sim's primitives) stays above the table at the grasp: corners of the parts.
         for part in JAW.parts(g.opening_m):
@@ -56,7 +58,9 @@ def test_wider_than_the_stroke_everywhere_gives_no_jaw_grasp_but_a_suction_grasp
     target = _box("carton", [-0.55, 0.0, 0.1], [0.2, 0.2, 0.15], family="carton")
     with pytest.raises(NoFeasibleGrasp) as err:
         plan_grasps(target, ROBOT, JAW, [], TABLE, None, HOME_Q)
-    assert set(err.value.rejected) == {"stroke"} and err.value.rejected["stroke"] == err.value.n_candidates > 0
+    assert (
+        set(err.value.rejected) == {"stroke"} and err.value.rejected["stroke"] == err.value.n_candidates > 0
+    )
     assert "stroke" in str(err.value)
     cup = SuctionCupGeometry()
     robot = load_robot("ur5e", tcp_offset=cup.T_flange_tcp)

@@ -30,7 +30,9 @@ def _sat_overlap(Ra, ca, ha, Rb, cb, hb) -> bool:
 def test_batched_box_queries_agree_with_separating_axes():
     rng = np.random.default_rng(21)
     obstacles = [
-        ObjectModel(f"o{i}", Pose9D(random_rotation(rng), rng.uniform(-0.3, 0.3, 3), rng.uniform(0.03, 0.12, 3)))
+        ObjectModel(
+            f"o{i}", Pose9D(random_rotation(rng), rng.uniform(-0.3, 0.3, 3), rng.uniform(0.03, 0.12, 3))
+        )
         for i in range(6)
     ]
     scene = CollisionScene(obstacles)
@@ -63,10 +65,18 @@ def test_support_points_and_target_are_told_apart():
     scene = CollisionScene([], table, np.vstack([on_target, on_table, clutter]), target, voxel_size_m=0.01)
     # Only the clutter is left as voxels: within its 4 x 4 x 5 cm block (+ one voxel of rounding).
     assert len(scene.voxel_centres) > 0
-    assert np.all(scene.voxel_centres >= [0.19, 0.19, 0.0]) and np.all(scene.voxel_centres <= [0.25, 0.25, 0.06])
+    assert np.all(scene.voxel_centres >= [0.19, 0.19, 0.0]) and np.all(
+        scene.voxel_centres <= [0.25, 0.25, 0.06]
+    )
     box = fcl.Box(0.02, 0.02, 0.02)
-    assert scene.collide_object(fcl.CollisionObject(box, fcl.Transform(np.array([0.22, 0.22, 0.03])))).kind == "points"
-    assert scene.collide_object(fcl.CollisionObject(box, fcl.Transform(np.array([0.0, 0.0, 0.05])))).kind == "target"
+    assert (
+        scene.collide_object(fcl.CollisionObject(box, fcl.Transform(np.array([0.22, 0.22, 0.03])))).kind
+        == "points"
+    )
+    assert (
+        scene.collide_object(fcl.CollisionObject(box, fcl.Transform(np.array([0.0, 0.0, 0.05])))).kind
+        == "target"
+    )
     below = fcl.CollisionObject(box, fcl.Transform(np.array([-0.3, 0.0, 0.005])))
     assert scene.collide_object(below).kind == "support"
     assert scene.collide_object(below, include_support=False) is None
