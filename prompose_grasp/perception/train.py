@@ -271,7 +271,7 @@ def train_on_tracks(
             optimizer.step()
             scheduler.step()
             done = step + 1
-            losses = {k: float(v) for k, v in terms.items()}
+            losses = {k: float(v.detach()) for k, v in terms.items()}
             record: dict[str, Any] = {}
             if done % tc.log_every == 0 or done == tc.steps:
                 record.update(step=done, lr=optimizer.param_groups[0]["lr"], **losses)
