@@ -1,0 +1,52 @@
+"""Command parsing: structure by grammar, vocabulary by MiniLM similarity, clear refusals."""
+
+from __future__ import annotations
+
+import pytest
+
+from prompose_grasp.pipeline import CommandNotUnderstood, CommandParser
+
+
+@pytest.fixture(scope="module")
+def parser():
+    return CommandParser()
+
+
+@pytest.mark.parametrize(
+    ("text", "action", "obj", "target", "plural"),
+    [
+        ("pick up the red mug", "pick", "the red mug", None, False),
+        ("put the mustard bottle in the bin", "place", "the mustard bottle", "bin", False),
+        ("place the yellow carton on the pallet", "place", "the yellow carton", "pallet", False),
+        ("stack the brown cartons on the pallet", "stack", "the brown cartons", "pallet", True),
+        ("move the can onto the conveyor belt", "place", "the can", "conveyor", False),
+        ("depalletise the cartons onto the conveyor", "place", "the cartons", "conveyor", True),
+        ("Please, could you drop the ball into the tote?", "place", "the ball", "bin", False),
+        ("take all boxes to the kitchen counter", "place", "all boxes", "table", True),
+        ("grab the glass", "pick", "the glass", None, False),
+        # Verbs and places that are in no list, understood by similarity:
+        ("snatch the mug left of the bowl", "pick", "the mug left of the bowl", None, False),
+        ("retrieve the stapler", "pick", "the stapler", None, False),
+        ("put the can in the cardboard box", "place", "the can", "bin", False),
+    ],
+)
+def test_known_commands(parser, text, action, obj, target, plural):
+    c = parser.parse(text)
+    assert (c.action, c.object_prompt, c.target, c.plural) == (action, obj, target, plural)
+    assert c.text == text
+
+
+@pytest.mark.parametrize(
+    ("text", "why"),
+    [
+        ("", "empty"),
+        ("sing the mug", "no known action"),
+        ("pick up", "names no object"),
+        ("put the mug", "needs a place"),
+        ("put the mug on the moon", "is none of"),
+    ],
+)
+def test_refusals_say_what_was_wrong_and_give_examples(parser, text, why):
+    with pytest.raises(CommandNotUnderstood, match=why) as err:
+        parser.parse(text)
+    assert "put the mustard bottle in the bin" in str(err.value)  # the examples come with the refusal
