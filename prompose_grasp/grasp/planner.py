@@ -237,23 +237,34 @@ def plan_grasps(
         status[alive[~ok]] = "ik"
     timings["ik"] = (time.perf_counter() - t) * 1e3
 
-    # Gripper vs scene, one broadphase query for all survivors.
+    # Gripper vs scene, one broadphase query for all survivors. A pose and its flip (half a turn about the
+    # approach) occupy the same space (the hulls are symmetric: the fingers swap), so each distinct gripper
+    # placement is checked once and its verdict shared.
     t = time.perf_counter()
     alive = np.flatnonzero(status == "")
-    check = alive[cands.check_target[alive]]
-    if check.size and scene.target is not None:
-        # A target vertex inside a gripper box is a collision for certain: settled in numpy, so fcl's
-        # narrowphase (one Python callback per overlapping pair) only sees the undecided ones.
-        inside = _target_points_inside(scene.target, cands.T_base_tcp[check], centres_tcp[check], halves)
-        status[check[inside]] = "collision_target"
-        alive = np.flatnonzero(status == "")
     if alive.size:
-        T = cands.T_base_tcp[alive]
-        centres = centres_tcp[alive] @ np.swapaxes(T[:, :3, :3], 1, 2) + T[:, None, :3, 3]
-        hits = scene.boxes_first_hits(T[:, :3, :3], centres, halves, include_target=cands.check_target[alive])
-        for i, hit in zip(alive, hits):
-            if hit is not None:
-                status[i] = hit.reason
+        rep, inverse = _distinct_placements(cands, alive)
+        verdict = np.full(len(rep), "", dtype=object)
+        check = np.flatnonzero(cands.check_target[rep])
+        if check.size and scene.target is not None:
+            # A target vertex inside a gripper box is a collision for certain: settled in numpy, so fcl's
+            # narrowphase (one Python callback per overlapping pair) only sees the undecided ones.
+            inside = _target_points_inside(
+                scene.target, cands.T_base_tcp[rep[check]], centres_tcp[rep[check]], halves
+            )
+            verdict[check[inside]] = "collision_target"
+        todo = np.flatnonzero(verdict == "")
+        if todo.size:
+            idx = rep[todo]
+            T = cands.T_base_tcp[idx]
+            centres = centres_tcp[idx] @ np.swapaxes(T[:, :3, :3], 1, 2) + T[:, None, :3, 3]
+            hits = scene.boxes_first_hits(
+                T[:, :3, :3], centres, halves, include_target=cands.check_target[idx]
+            )
+            for r, hit in zip(todo, hits):
+                if hit is not None:
+                    verdict[r] = hit.reason
+        status[alive] = verdict[inverse]
     timings["gripper_collision"] = (time.perf_counter() - t) * 1e3
 
     # Rank, then the arm (and the approach / retreat IK) in rank order.
@@ -329,6 +340,19 @@ def plan_grasps(
         raise err
     log.debug("plan_grasps: %d grasps of %d candidates; rejected %s", len(grasps), n, dict(rejected))
     return GraspPlan(tuple(grasps), dict(rejected), n, n_unchecked, timings)
+
+
+def _distinct_placements(cands: Candidates, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(representative rows, inverse): rows whose gripper fills the same space (same tcp position, approach,
+    closing line up to its sign, opening; to 1e-9) share one representative; `inverse` maps each of `rows`
+    to its representative's index."""
+    T = cands.T_base_tcp[rows]
+    y = T[:, :3, 1]
+    # The closing line's direction up to sign: flip so that its largest component is positive.
+    sign = np.sign(y[np.arange(len(y)), np.argmax(np.abs(y), axis=1)])
+    key = np.column_stack([T[:, :3, 3], T[:, :3, 2], y * sign[:, None], cands.opening_m[rows]])
+    _, first, inverse = np.unique(np.round(key, 9), axis=0, return_index=True, return_inverse=True)
+    return rows[first], inverse.ravel()
 
 
 def _target_points_inside(

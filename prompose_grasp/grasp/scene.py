@@ -34,8 +34,8 @@ __all__ = ["CollisionScene", "Hit", "voxelize_points"]
 
 log = logging.getLogger(__name__)
 
-#: Edge of the blocks the voxel meshes are split into [m].
-_VOXEL_BLOCK_M = 0.1
+#: Edge of the blocks the voxel meshes are split into [m] (about a swept gripper box: fewer overlapping pairs).
+_VOXEL_BLOCK_M = 0.25
 #: Links that stand on the support (never checked against it).
 _BASE_LINKS = ("base", "shoulder_link")
 
@@ -162,7 +162,7 @@ class CollisionScene:
                 P = P[~inside]
             if len(P):
                 self.voxel_centres = P
-                # One mesh per 10 cm block of voxels: tight bounding boxes let the broadphase skip the blocks
+                # One mesh per 25 cm block of voxels: tight bounding boxes let the broadphase skip the blocks
                 # a query is far from (one mesh for all would overlap every query's bounding box).
                 blocks = np.floor(self.voxel_centres / _VOXEL_BLOCK_M).astype(np.int64)
                 _, block_of = np.unique(blocks, axis=0, return_inverse=True)

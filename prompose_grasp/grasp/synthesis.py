@@ -295,9 +295,28 @@ def antipodal_grasps(
         return Candidates.empty()
     import trimesh
 
-    points, face_idx = trimesh.sample.sample_surface(mesh, config.mesh_samples, seed=config.seed)
+    regions = family_regions(target.family)
+    # Families grasped only in some regions: draw 4x the samples and keep those in the regions' bands, so a
+    # thin rim gets as many samples as a whole surface would (the pair count stays mesh_samples^2 / 2).
+    n_draw = config.mesh_samples * (4 if regions else 1)
+    points, face_idx = trimesh.sample.sample_surface(mesh, n_draw, seed=config.seed)
     normals = np.asarray(mesh.face_normals)[face_idx]
     P = np.asarray(points, dtype=np.float64)
+    if regions:
+        y_obj = (P - target.pose.t) @ target.pose.R[:, 1]
+        height = float(target.pose.size[1])
+        band = np.zeros(len(P), dtype=bool)
+        if "rim" in regions:
+            band |= y_obj >= height / 2.0 - max(_RIM_FRACTION * height, _RIM_MIN_M)
+        if "body" in regions:
+            band |= np.abs(y_obj) <= _BODY_FRACTION * height / 2.0
+        idx = np.flatnonzero(band)
+        idx = (
+            idx[np.linspace(0, len(idx) - 1, min(len(idx), config.mesh_samples)).astype(np.int64)]
+            if len(idx)
+            else idx
+        )
+        P, normals = P[idx], normals[idx]
     n = len(P)
     cos_cone = math.cos(math.atan(config.friction_coefficient))
     i1, i2 = np.triu_indices(n, k=1)
