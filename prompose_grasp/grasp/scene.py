@@ -34,7 +34,7 @@ __all__ = ["CollisionScene", "Hit", "voxelize_points"]
 
 log = logging.getLogger(__name__)
 
-#: Edge of the blocks the voxel meshes are split into [m] (about a swept gripper box: fewer overlapping pairs).
+#: Edge of the blocks the voxel meshes are split into [m] (about a swept gripper box: fewer pairs).
 _VOXEL_BLOCK_M = 0.25
 #: Links that stand on the support (never checked against it).
 _BASE_LINKS = ("base", "shoulder_link")
