@@ -261,9 +261,9 @@ def plan_grasps(
             hits = scene.boxes_first_hits(
                 T[:, :3, :3], centres, halves, include_target=cands.check_target[idx]
             )
-            for r, hit in zip(todo, hits):
+            for slot, hit in zip(todo, hits):
                 if hit is not None:
-                    verdict[r] = hit.reason
+                    verdict[slot] = hit.reason
         status[alive] = verdict[inverse]
     timings["gripper_collision"] = (time.perf_counter() - t) * 1e3
 
@@ -296,12 +296,12 @@ def plan_grasps(
         near_ok = ok_near & (
             np.linalg.norm(np.nan_to_num(q_near - seeds, nan=np.inf), axis=1) <= _SAME_BRANCH_RAD
         )
-        m = len(idx)
+        n_chunk = len(idx)
         for r, i in enumerate(idx):
             if len(grasps) >= cfg.max_grasps and not cfg.exhaustive:
                 n_unchecked += 1
                 continue
-            if not (near_ok[r] and near_ok[m + r]):
+            if not (near_ok[r] and near_ok[n_chunk + r]):
                 status[i] = "ik_approach"
                 continue
             q_ok = None
