@@ -184,11 +184,13 @@ def train_on_tracks(
     device: str | torch.device = "cpu",
     resume: bool = True,
     progress: bool = False,
+    stop_at: int | None = None,
 ) -> TrainResult:
     """Train a `ProMPoseNet` on preprocessed tracks; checkpoints and logs go to `out_dir`.
 
     With `resume` and an existing `out_dir/last.pt`, the run continues from it (same network config
-    required) up to `train_config.steps`.
+    required) up to `train_config.steps`. `stop_at` ends this call after that many total steps (with a
+    checkpoint), as an interruption would; the schedule still spans `train_config.steps`.
     """
     t0 = time.perf_counter()
     if not train_tracks:
@@ -218,6 +220,7 @@ def train_on_tracks(
     elif (out / LOG_NAME).exists():
         (out / LOG_NAME).unlink()  # a fresh run does not append to an old run's log
 
+    end = tc.steps if stop_at is None else max(min(int(stop_at), tc.steps), start)
     windows = make_windows(train_tracks, config.window, stride=1)
     log_file = (out / LOG_NAME).open("a")
 
@@ -241,12 +244,12 @@ def train_on_tracks(
     val_last = val_first
     losses: dict[str, float] = {}
     bar = _progress_bar(progress)
-    task = bar.add_task("train", total=tc.steps, completed=start, info="") if bar is not None else None
+    task = bar.add_task("train", total=end, completed=start, info="") if bar is not None else None
     model.train()
     try:
         if bar is not None:
             bar.start()
-        for step in range(start, tc.steps):
+        for step in range(start, end):
             rng = np.random.default_rng([tc.seed, step])
             pick = rng.choice(len(windows), size=tc.batch_size, replace=len(windows) < tc.batch_size)
             batch = collate(train_tracks, [windows[i] for i in pick], config.window, rng, tc.augment).to(
@@ -273,14 +276,14 @@ def train_on_tracks(
             done = step + 1
             losses = {k: float(v.detach()) for k, v in terms.items()}
             record: dict[str, Any] = {}
-            if done % tc.log_every == 0 or done == tc.steps:
+            if done % tc.log_every == 0 or done == end:
                 record.update(step=done, lr=optimizer.param_groups[0]["lr"], **losses)
-            if val_tracks and (done % tc.val_every == 0 or done == tc.steps):
+            if val_tracks and (done % tc.val_every == 0 or done == end):
                 val_last = evaluate(model, val_tracks, tc.batch_size, device, tc.loss)
                 record.update(step=done, val=val_last)
             if record:
                 write(record)
-            if done % tc.checkpoint_every == 0 or done == tc.steps:
+            if done % tc.checkpoint_every == 0 or done == end:
                 save(done)
             if bar is not None and task is not None:
                 bar.update(task, completed=done, info=f"loss {losses['loss']:.3f}")
@@ -288,10 +291,10 @@ def train_on_tracks(
         if bar is not None:
             bar.stop()
         log_file.close()
-    if start >= tc.steps and not ckpt_path.is_file():
+    if start >= end and not ckpt_path.is_file():
         save(start)
     return TrainResult(
-        steps=max(start, tc.steps),
+        steps=max(start, end),
         resumed_from=start,
         val_first=val_first,
         val_last=val_last,
