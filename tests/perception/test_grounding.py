@@ -218,3 +218,27 @@ def test_intrinsics_type_is_checked_before_anything_else():
     # a flat, featureless scene has no candidates, and that is not an error
     result = ground(np.zeros((48, 64, 3), np.uint8), np.ones((48, 64), np.float32), K, "mug")
     assert result.candidates == () and result.best is None
+
+
+def test_noun_prior_comes_from_the_prior_library(grounder):
+    mug = grounder.noun_prior("mug")
+    assert mug is not None and mug.family == "mug"
+    t = grounder.priors.family_prior("mug").typical_size_m  # (x, y up, z)
+    np.testing.assert_allclose(mug.typical_extent_m, [max(t[0], t[2]), min(t[0], t[2]), t[1]])
+    assert grounder.noun_prior("zzzz qqq") is None  # no family is similar enough: no metric size term
+
+
+@pytest.mark.parametrize(
+    ("prompt", "names"),
+    [
+        ("the mug", {"mug"}),
+        ("the can", {"can"}),
+        ("the box", {"box"}),
+        ("the cup", {"cup_left", "cup_right"}),
+    ],
+)
+def test_category_only_prompts_find_the_object(scene, grounder, prompt, names):
+    result = grounder.ground(scene.rgb, scene.depth_m, scene.intrinsics, prompt)
+    found, overlap = best_object(scene, result)
+    assert found in names
+    assert overlap >= MIN_NAMED_IOU

@@ -18,7 +18,13 @@ from prompose_grasp.perception.grounding.describe import (
     size_class,
 )
 from prompose_grasp.perception.grounding.plane import PlaneFrame, fit_support_plane
-from prompose_grasp.perception.grounding.score import CandidateFeatures, score_candidates
+from prompose_grasp.perception.grounding.score import (
+    CandidateFeatures,
+    NounPrior,
+    ScoringWeights,
+    metric_size_term,
+    score_candidates,
+)
 
 K = CameraIntrinsics(400.0, 400.0, 159.5, 119.5, 320, 240)
 
@@ -204,3 +210,33 @@ def test_scoring_terms_rank_as_their_words_say():
     ref = (feats(plane_xy_m=xy, description_sim=ref_sim), None)
     assert np.argmax(score_candidates(parse_prompt("the thing left of the bowl"), f, None, ref)) == 0
     assert np.argmax(score_candidates(parse_prompt("the thing right of the bowl"), f, None, ref)) == 2
+
+
+def test_metric_size_term_prefers_the_typical_size_and_forgives_shrinking():
+    w = ScoringWeights()
+    typical = np.array([0.12, 0.08, 0.10])
+    ext = np.stack([typical, typical * 0.8, typical * 1.25, typical * 3.0])
+    t = metric_size_term(ext, typical, w)
+    assert t[0] == pytest.approx(1.0)  # exactly typical: exp(0) maps to +1
+    # occlusion only shrinks what is seen: 20 % too small costs less than 25 % too large (same |log ratio|)
+    assert 1.0 > t[1] > t[2] > t[3]
+    assert t[3] < -0.9  # three times the typical size is implausible (d2 ~ 10: 2 exp(-5) - 1)
+    assert np.all((t >= -1.0) & (t <= 1.0))
+
+
+def test_noun_prior_ranks_by_metric_size_unless_a_size_word_is_said():
+    # three identical-looking candidates: only their measured extents differ; the noun's family is 10 cm
+    prior = NounPrior("mug", 0.9, np.array([0.1, 0.08, 0.1]))
+    ext = np.array([[0.3, 0.25, 0.3], [0.1, 0.07, 0.1], [0.03, 0.03, 0.03]])
+    f = feats(extents_m=ext)
+    assert np.argmax(score_candidates(parse_prompt("the mug"), f, None, noun_prior=prior)) == 1
+    without = score_candidates(parse_prompt("the mug"), f, None)
+    assert np.ptp(without) == 0.0  # nothing else tells them apart
+    # "the small mug": the user says it is not typical; the size adjective ranks, the typical size does not
+    small = score_candidates(
+        parse_prompt("the small mug"),
+        feats(extents_m=ext, size_classes=("large", "medium", "small")),
+        None,
+        noun_prior=prior,
+    )
+    assert np.argmax(small) == 2

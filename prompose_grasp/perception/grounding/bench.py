@@ -17,6 +17,13 @@ For every object with at least `--min-visible-px` visible pixels, two prompts ar
 
 A prompt is a hit when the best candidate's mask has IoU >= 0.5 with the (a) ground-truth mask. Timing is
 the wall time of `Grounder.ground` (median and 90th percentile over all calls after one warm-up call).
+
+Also reported, per category and for the scenes of the dataset's test split (`split.json`: unseen test
+categories with train-category distractors, the estimator benchmark's protocol) next to all scenes:
+
+- recall: some candidate (not only the best) has IoU >= 0.5 with a target: the segmentation's share;
+- confusion of category prompts: the category of the object the best mask matches (IoU >= 0.5), "bad
+  mask" when it matches none (merged or split objects), "none" without candidates.
 """
 
 from __future__ import annotations
@@ -73,6 +80,13 @@ def _generate(out: Path, scenes: int, frames: int, seed: int) -> None:
     subprocess.run(cmd, check=True, env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")})
 
 
+def _test_scenes(data: Path) -> set[str]:
+    split = data / "split.json"
+    if not split.is_file():
+        return set()
+    return set(json.loads(split.read_text()).get("test", {}).get("scenes", []))
+
+
 def _frames(data: Path):
     for meta_path in sorted(data.glob("*/*-meta.json")):
         stem = str(meta_path)[: -len("-meta.json")]
@@ -107,28 +121,60 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
     return float((a & b).sum() / max(1, (a | b).sum()))
 
 
+def _summary(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Hit rate, recall, mean IoU per prompt kind and per category; confusion of the category prompts."""
+    out: dict[str, Any] = {}
+    for kind in ("category", "colour + category"):
+        rs = [r for r in records if r["kind"] == kind]
+        if not rs:
+            continue
+        cats = sorted({r["category"] for r in rs})
+        out[kind] = {
+            "n": len(rs),
+            "top1_iou_ge_0.5": float(np.mean([r["hit"] for r in rs])),
+            "recall_iou_ge_0.5": float(np.mean([r["recall"] for r in rs])),
+            "mean_top1_iou": float(np.mean([r["iou"] for r in rs])),
+            "per_category": {
+                c: {
+                    "n": sum(r["category"] == c for r in rs),
+                    "top1_iou_ge_0.5": float(np.mean([r["hit"] for r in rs if r["category"] == c])),
+                    "recall_iou_ge_0.5": float(np.mean([r["recall"] for r in rs if r["category"] == c])),
+                }
+                for c in cats
+            },
+        }
+        if kind == "category":
+            confusion: dict[str, dict[str, int]] = {}
+            for r in rs:
+                row = confusion.setdefault(r["category"], {})
+                row[r["predicted"]] = row.get(r["predicted"], 0) + 1
+            out[kind]["confusion"] = confusion
+    return out
+
+
 def run(data: Path, min_visible_px: int, config: GroundingConfig) -> dict[str, Any]:
     grounder = Grounder(config)
     times: list[float] = []
     encode_times: list[float] = []
     warm_up_s = 0.0
     stages: dict[str, list[float]] = {"plane_s": [], "segment_s": [], "describe_s": [], "score_s": []}
-    hits: dict[str, list[bool]] = {"category": [], "colour + category": []}
-    ious: dict[str, list[float]] = {"category": [], "colour + category": []}
+    records: list[dict[str, Any]] = []
+    test_scenes = _test_scenes(data)
     warmed = False
     n_frames = 0
-    for _, rgb, depth, mask, K, objects in _frames(data):
+    for scene, rgb, depth, mask, K, objects in _frames(data):
         n_frames += 1
         if not warmed:  # loading MiniLM and embedding the description vocabulary happen once per process
             t0 = time.perf_counter()
             grounder.warm_up()
             warm_up_s = time.perf_counter() - t0
             warmed = True
+        gts = {o["id"]: mask == o["id"] for o in objects}
         for obj in objects:
-            gt = mask == obj["id"]
+            gt = gts[obj["id"]]
             if gt.sum() < min_visible_px:
                 continue
-            same = [mask == o["id"] for o in objects if o["prompt"] == obj["prompt"]]
+            same = [gts[o["id"]] for o in objects if o["prompt"] == obj["prompt"]]
             colour, _, _ = dominant_colour(rgb[gt])
             for kind, prompt, targets in (
                 ("category", f"the {obj['prompt']}", same),
@@ -149,11 +195,29 @@ def run(data: Path, min_visible_px: int, config: GroundingConfig) -> dict[str, A
                     if result.candidates
                     else 0.0
                 )
-                ious[kind].append(best)
-                hits[kind].append(best >= HIT_IOU)
+                recall = any(_iou(c.mask, t) >= HIT_IOU for c in result.candidates for t in targets)
+                predicted = "none"
+                if result.candidates:
+                    top = result.candidates[0].mask
+                    match = max(objects, key=lambda o: _iou(top, gts[o["id"]]))
+                    predicted = match["category"] if _iou(top, gts[match["id"]]) >= HIT_IOU else "bad mask"
+                records.append(
+                    {
+                        "scene": scene,
+                        "test_split": scene in test_scenes,
+                        "category": obj["category"],
+                        "kind": kind,
+                        "prompt": prompt,
+                        "iou": best,
+                        "hit": best >= HIT_IOU,
+                        "recall": recall,
+                        "predicted": predicted,
+                    }
+                )
     if not times:
         raise SystemExit(f"no frames with objects of >= {min_visible_px} visible pixels under {data}")
     ms = 1e3 * np.asarray(times)
+    summary = _summary(records)
     return {
         "frames": n_frames,
         "prompts": len(times),
@@ -170,9 +234,12 @@ def run(data: Path, min_visible_px: int, config: GroundingConfig) -> dict[str, A
         "warm_up_s": warm_up_s,
         "torch_threads": _torch_threads(),
         "stage_median_ms": {k: float(1e3 * np.median(v)) for k, v in stages.items()},
-        "top1_iou_ge_0.5": {k: float(np.mean(v)) for k, v in hits.items()},
-        "mean_top1_iou": {k: float(np.mean(v)) for k, v in ious.items()},
-        "per_kind_count": {k: len(v) for k, v in hits.items()},
+        "top1_iou_ge_0.5": {k: v["top1_iou_ge_0.5"] for k, v in summary.items()},
+        "mean_top1_iou": {k: v["mean_top1_iou"] for k, v in summary.items()},
+        "per_kind_count": {k: v["n"] for k, v in summary.items()},
+        "all_scenes": summary,
+        "test_split": _summary([r for r in records if r["test_split"]]),
+        "records": records,
         "machine": {
             "platform": platform.platform(),
             "python": platform.python_version(),
@@ -180,6 +247,23 @@ def run(data: Path, min_visible_px: int, config: GroundingConfig) -> dict[str, A
             "affinity": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
         },
     }
+
+
+def _print_summary(title: str, summary: dict[str, Any]) -> None:
+    for kind, v in summary.items():
+        print(
+            f"\n{title}, {kind!r} prompts: top-1 {100 * v['top1_iou_ge_0.5']:.1f} % "
+            f"(recall {100 * v['recall_iou_ge_0.5']:.1f} %, mean IoU {v['mean_top1_iou']:.3f}, n={v['n']})"
+        )
+        for c, pc in v["per_category"].items():
+            conf = ""
+            if "confusion" in v:
+                wrong = {k: n for k, n in v["confusion"][c].items() if k != c}
+                conf = ", ".join(f"{k} {n}" for k, n in sorted(wrong.items(), key=lambda x: -x[1]))
+            print(
+                f"  {c:8} n={pc['n']:3}  top-1 {100 * pc['top1_iou_ge_0.5']:5.1f} %  "
+                f"recall {100 * pc['recall_iou_ge_0.5']:5.1f} %  {('-> ' + conf) if conf else ''}"
+            )
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -214,6 +298,9 @@ def main(argv: list[str] | None = None) -> None:
         n = res["per_kind_count"][k]
         print(f"{'top-1 IoU>=0.5, ' + k:34} {100 * res['top1_iou_ge_0.5'][k]:9.1f}% (n={n})")
         print(f"{'mean top-1 IoU, ' + k:34} {res['mean_top1_iou'][k]:10.3f}")
+    _print_summary("all scenes", res["all_scenes"])
+    if res["test_split"]:
+        _print_summary("test split (unseen categories + distractors)", res["test_split"])
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(res, indent=2))

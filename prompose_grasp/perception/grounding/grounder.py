@@ -27,6 +27,7 @@ from prompose_grasp.perception.grounding.plane import PlaneFrame, fit_support_pl
 from prompose_grasp.perception.grounding.score import (
     FAMILY_TEXTS,
     CandidateFeatures,
+    NounPrior,
     ScoringWeights,
     score_candidates,
 )
@@ -103,8 +104,12 @@ class Grounder:
         config: segmentation and plane settings.
         text_encoder: any `perception.text.TextEncoder`; default: the shared MiniLM, loaded on first use.
         weights: score term weights (`score.ScoringWeights`).
+        priors: a `perception.priors.PriorLibrary` whose families' typical sizes give the metric size term
+            (share the estimator's); default: one built on first use with this grounder's text encoder
+            (the priors package is imported then, not at module import: it pulls in trimesh).
 
-    The text encoder is only touched by `ground`; embeddings of descriptions and family sentences are cached.
+    The text encoder is only touched by `ground`; embeddings of descriptions and family sentences and the
+    library family of each noun are cached.
     """
 
     def __init__(
@@ -112,14 +117,25 @@ class Grounder:
         config: GroundingConfig | None = None,
         text_encoder: Any | None = None,
         weights: ScoringWeights | None = None,
+        priors: Any | None = None,
     ):
         if config is not None and not isinstance(config, GroundingConfig):
             raise InvalidInputError(f"config must be a GroundingConfig, got {type(config).__name__}")
+        if weights is not None and not isinstance(weights, ScoringWeights):
+            raise InvalidInputError(f"weights must be a ScoringWeights, got {type(weights).__name__}")
+        if priors is not None and not (hasattr(priors, "match") and hasattr(priors, "family_prior")):
+            raise InvalidInputError(
+                "priors must be a perception.priors.PriorLibrary (with match and family_prior), "
+                f"got {type(priors).__name__}"
+            )
         self.config = config or GroundingConfig()
         self.weights = weights or ScoringWeights()
         self._encoder = text_encoder
+        self._priors = priors
         self._cache: dict[str, np.ndarray] = {}
+        self._noun_priors: dict[str, NounPrior | None] = {}
         self._lock = threading.Lock()
+        self._priors_lock = threading.Lock()
 
     @property
     def text_encoder(self) -> Any:
@@ -130,8 +146,19 @@ class Grounder:
             self._encoder = default_text_encoder(self.config.device)
         return self._encoder
 
+    @property
+    def priors(self) -> Any:
+        """The prior library consulted for nouns' typical sizes (built on first access)."""
+        with self._priors_lock:
+            if self._priors is None:
+                from prompose_grasp.perception.priors import PriorLibrary
+
+                self._priors = PriorLibrary(encoder=self.text_encoder)
+            return self._priors
+
     def warm_up(self) -> None:
-        """Load the text encoder and embed every possible description and the shape-family sentences.
+        """Load the text encoder, embed every possible description and the shape-family sentences, and
+        prepare the prior library's family descriptions.
 
         Descriptions come from a closed vocabulary (3 sizes x 12 colours x 6 families = 216 phrases), so
         after this a first `ground` call only encodes the prompt's own phrases (one short batch).
@@ -143,6 +170,30 @@ class Grounder:
             for family in SHAPE_FAMILIES
         ]
         self._embed([*FAMILY_TEXTS.values(), *phrases])
+        self.noun_prior("object")  # embeds the library's family descriptions once
+
+    def noun_prior(self, noun: str) -> NounPrior | None:
+        """The library family `noun` names (its best match at or above the library's threshold), or None.
+
+        Args:
+            noun: a noun phrase ("mug", "soda can"); "" gives None.
+        """
+        if not isinstance(noun, str):
+            raise InvalidInputError(f"noun must be a str, got {type(noun).__name__}")
+        if noun in self._noun_priors:
+            return self._noun_priors[noun]
+        library = self.priors
+        out = None
+        if noun.strip():
+            family, score = library.match(noun)[0]
+            if score >= library.threshold:
+                t = np.asarray(library.family_prior(family).typical_size_m, dtype=np.float64)
+                # canonical frames are +y up: footprint (x, z) sorted, then the height y
+                extent = np.array([max(t[0], t[2]), min(t[0], t[2]), t[1]])
+                out = NounPrior(family, float(score), extent)
+        with self._priors_lock:
+            self._noun_priors[noun] = out
+        return out
 
     def _embed(self, texts: list[str]) -> np.ndarray:
         """(N, D) unit embeddings, cached per text (descriptions come from a small vocabulary)."""
@@ -253,7 +304,7 @@ class Grounder:
         t3 = time.perf_counter()
         candidates: tuple[Candidate, ...] = ()
         if segs:
-            scores = self._score(parsed, described)
+            scores = self._score(parsed, described, has_plane=plane is not None)
             order = np.argsort(-scores, kind="stable")[: cfg.max_candidates]
             candidates = tuple(
                 Candidate(segs[i].mask, segs[i].box_xyxy, float(scores[i]), described[i][0]) for i in order
@@ -277,7 +328,16 @@ class Grounder:
             distance_m=np.array([float(np.linalg.norm(d[0].centroid_cam)) for d in described]),
         )
 
-    def _score(self, parsed: ParsedPrompt, described: list) -> np.ndarray:
+    def _prior_for(self, parsed: ParsedPrompt, has_plane: bool) -> NounPrior | None:
+        if parsed.generic:
+            return None
+        prior = self.noun_prior(parsed.noun)
+        if prior is None or has_plane:
+            return prior
+        # without a plane the extents are principal spreads, largest first
+        return NounPrior(prior.family, prior.match_score, np.sort(prior.typical_extent_m)[::-1])
+
+    def _score(self, parsed: ParsedPrompt, described: list, has_plane: bool = True) -> np.ndarray:
         # every text this prompt needs goes through the encoder in one batch (one forward pass, not four)
         phrases = [p for p in (parsed, parsed.reference) if p is not None]
         self._embed(
@@ -289,7 +349,17 @@ class Grounder:
         reference = None
         if parsed.reference is not None:
             reference = (self._features(parsed.reference.text, described), self._shape_prob(parsed.reference))
-        return score_candidates(parsed, feats, self._shape_prob(parsed), reference, self.weights)
+        return score_candidates(
+            parsed,
+            feats,
+            self._shape_prob(parsed),
+            reference,
+            self.weights,
+            noun_prior=self._prior_for(parsed, has_plane),
+            reference_prior=None
+            if parsed.reference is None
+            else self._prior_for(parsed.reference, has_plane),
+        )
 
 
 _GROUNDERS: dict[GroundingConfig, Grounder] = {}

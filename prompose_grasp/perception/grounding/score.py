@@ -8,6 +8,7 @@ cosine):
 | semantic | cosine (MiniLM) of the prompt's target phrase and the candidate's description | 1.0 |
 | colour | +1 when >= 40 % of the mask has an asked colour, falling linearly to -1 at 0 % | 1.5 |
 | shape | fit of the measured shape family to the noun: p(family | noun) / max p, to [-1, 1] | 0.5 |
+| metric size | log-normal fit of the measured extents to the typical size of the noun's prior family | 1.5 |
 | size, superlative | rank among the plausible candidates: +1 the extreme, -1 the other end | 2.0 |
 | size, adjective | "small" +1 for size class small, 0 medium, -1 large (and mirrored for "large") | 0.5 |
 | position | rank among the plausible candidates ("nearest", "leftmost", ...), like superlatives | 1.5 |
@@ -22,6 +23,19 @@ with one sentence per shape family (`FAMILY_TEXTS`); generic nouns ("object", "t
 the image's left, "behind" is farther from the camera along the plane, "in front of" nearer; the reference
 is the best candidate for the reference phrase (same scoring without positions) and gets -1 itself.
 
+Metric size. When the noun names a family of the prior library (`NounPrior`: "mug" -> the mug family, typical
+size 11.6 x 8.2 cm footprint, 9.5 cm tall), each candidate's measured extents e = (footprint length, width,
+height) are compared with the family's typical extents t in log space, r = log(e / t), per axis. Objects of a
+category vary by about +-30 % and the visible extents only shrink under occlusion and self-occlusion (the far
+half of a round object is not seen), so "too large" (r > 0) is judged with sigma 0.35 on every axis, "too
+small" with sigma 0.45 (footprint length), 0.8 (footprint width: a cylinder shows half its depth) and 0.35
+(height: amodal, objects stand on the plane). The term is 2 exp(-d2 / 2) - 1 with d2 the mean of (r / sigma)^2
+over the three axes: +1 at the typical size, 0 at about 1.2 sigma, -1 far off. It is left out when the prompt
+has a size word ("the small mug": the user then says the size is not typical).
+Measured on 60 generated scenes (seed 5, 498 category prompts, `python -m
+prompose_grasp.perception.grounding.bench`): top-1 from 51.8 % to 78.3 %; weights 1.0 / 2.0 gave 73.9 / 80.1 %
+but a heavier size term starts to overrule colour words, so 1.5.
+
 The returned score is sigmoid(2 (total - 1)): in (0, 1), monotone in the total, comparable within a prompt.
 """
 
@@ -33,7 +47,14 @@ import numpy as np
 
 from prompose_grasp.perception.grounding.language import ParsedPrompt
 
-__all__ = ["FAMILY_TEXTS", "CandidateFeatures", "ScoringWeights", "score_candidates"]
+__all__ = [
+    "FAMILY_TEXTS",
+    "CandidateFeatures",
+    "NounPrior",
+    "ScoringWeights",
+    "metric_size_term",
+    "score_candidates",
+]
 
 #: One sentence per measured shape family; the noun's similarity to them gives p(family | noun).
 FAMILY_TEXTS: dict[str, str] = {
@@ -47,11 +68,14 @@ FAMILY_TEXTS: dict[str, str] = {
 
 @dataclass(frozen=True)
 class ScoringWeights:
-    """Weights of the score terms (module docstring)."""
+    """Weights of the score terms (module docstring); the `size_*_sigma` are log-normal widths."""
 
     semantic: float = 1.0
     colour: float = 1.5
     shape: float = 0.5
+    metric_size: float = 1.5
+    size_over_sigma: float = 0.35
+    size_under_sigma: tuple[float, float, float] = (0.45, 0.8, 0.35)
     size_superlative: float = 2.0
     size_adjective: float = 0.5
     position: float = 1.5
@@ -59,6 +83,30 @@ class ScoringWeights:
     plausible_margin: float = 0.6
     colour_full_share: float = 0.4
     family_temperature: float = 0.05
+
+
+@dataclass(frozen=True)
+class NounPrior:
+    """What the prior library knows about a prompt's noun.
+
+    Attributes:
+        family: the library family the noun matched ("mug").
+        match_score: its retrieval score (cosine, >= the library's threshold).
+        typical_extent_m: (3,) float64 [m] the family's typical extents in the order the candidates are
+            measured: footprint length >= footprint width, height (sorted descending without a plane).
+    """
+
+    family: str
+    match_score: float
+    typical_extent_m: np.ndarray
+
+
+def metric_size_term(extents_m: np.ndarray, typical_extent_m: np.ndarray, w: ScoringWeights) -> np.ndarray:
+    """(K,) in [-1, 1]: log-normal fit of (K, 3) measured extents [m] to (3,) typical ones (module doc)."""
+    r = np.log(np.maximum(np.asarray(extents_m, dtype=np.float64), 1e-3) / np.asarray(typical_extent_m))
+    sigma = np.where(r > 0.0, w.size_over_sigma, np.asarray(w.size_under_sigma, dtype=np.float64))
+    d2 = np.mean((r / sigma) ** 2, axis=1)
+    return 2.0 * np.exp(-0.5 * d2) - 1.0
 
 
 @dataclass(frozen=True)
@@ -99,9 +147,13 @@ def _rank_term(values: np.ndarray, direction: int, plausible: np.ndarray) -> np.
 
 
 def _base_terms(
-    parsed: ParsedPrompt, feats: CandidateFeatures, shape_prob: dict[str, float] | None, w: ScoringWeights
+    parsed: ParsedPrompt,
+    feats: CandidateFeatures,
+    shape_prob: dict[str, float] | None,
+    w: ScoringWeights,
+    noun_prior: NounPrior | None = None,
 ) -> np.ndarray:
-    """Semantic + colour + shape + size-adjective total of each candidate."""
+    """Semantic + colour + shape + metric size + size-adjective total of each candidate."""
     total = w.semantic * feats.description_sim.astype(np.float64)
     if parsed.colours:
         cols = [feats.palette.index(c) for c in parsed.colours]
@@ -112,6 +164,8 @@ def _base_terms(
         total += w.shape * np.array(
             [0.0 if f not in shape_prob else 2.0 * shape_prob[f] / pmax - 1.0 for f in feats.families]
         )
+    if noun_prior is not None and parsed.size is None:
+        total += w.metric_size * metric_size_term(feats.extents_m, noun_prior.typical_extent_m, w)
     if parsed.size is not None and not parsed.size[2]:
         classes = ("small", "medium", "large")
         value = np.array([classes.index(c) - 1.0 for c in feats.size_classes])  # -1, 0, +1
@@ -134,6 +188,8 @@ def score_candidates(
     shape_prob: dict[str, float] | None,
     reference: tuple[CandidateFeatures, dict[str, float] | None] | None = None,
     weights: ScoringWeights | None = None,
+    noun_prior: NounPrior | None = None,
+    reference_prior: NounPrior | None = None,
 ) -> np.ndarray:
     """(K,) float64 scores in (0, 1) of the candidates for `parsed` (higher is better).
 
@@ -144,12 +200,14 @@ def score_candidates(
         reference: for a relation, the same features with `description_sim` for the reference phrase, and
             p(family | reference noun).
         weights: term weights.
+        noun_prior, reference_prior: the library family of the target's / reference's noun, when it names
+            one (the metric size term), else None.
     """
     w = weights or ScoringWeights()
     K = len(feats.description_sim)
     if K == 0:
         return np.zeros(0)
-    base = _base_terms(parsed, feats, shape_prob, w)
+    base = _base_terms(parsed, feats, shape_prob, w, noun_prior)
     plausible = base >= base.max() - w.plausible_margin
     total = base.copy()
     if parsed.size is not None and parsed.size[2]:
@@ -163,7 +221,7 @@ def score_candidates(
         total += w.position * _rank_term(values, direction, plausible)
     if parsed.relation is not None and parsed.reference is not None and reference is not None:
         ref_feats, ref_shape = reference
-        ref_base = _base_terms(parsed.reference, ref_feats, ref_shape, w)
+        ref_base = _base_terms(parsed.reference, ref_feats, ref_shape, w, reference_prior)
         ref = int(np.argmax(ref_base))
         delta = feats.plane_xy_m - feats.plane_xy_m[ref]
         dist = np.linalg.norm(delta, axis=1)
