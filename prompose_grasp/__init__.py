@@ -6,6 +6,8 @@ The curated public API lives here; subpackages hold the rest:
   (numpy + scipy only).
 - `prompose_grasp.eval`: NOCS-compatible 9-DoF pose metrics (`compute_nocs_map`).
 - `prompose_grasp.perception`: ProM-Pose, `ProMPose.default().estimate(frame, "the red mug")`.
+- `prompose_grasp.grasp`: parallel-jaw and suction grasps from 9-DoF boxes and meshes, python-fcl scenes,
+  IK-feasible ranking (`plan_grasps`), place planning, collision-checked pick-and-place motions.
 - `prompose_grasp.robot`: UR models (Pinocchio + MuJoCo from one DH table), FK/IK, trajectories, the
   `Arm` / `Gripper` / `RGBDCamera` interfaces and the shared command validator.
 """
@@ -17,6 +19,7 @@ from prompose_grasp.errors import (
     DeviceNotConnectedError,
     InvalidInputError,
     MissingDependencyError,
+    NoFeasibleGrasp,
     ObjectNotFoundError,
     PromposeError,
     UnknownNameError,
@@ -24,6 +27,7 @@ from prompose_grasp.errors import (
     UnsafeCommandError,
 )
 from prompose_grasp.geometry import Pose9D
+from prompose_grasp.grasp import GraspConfig, ObjectModel, Plane, plan_grasps
 from prompose_grasp.perception import Estimate, ProMPose
 from prompose_grasp.robot import (
     Arm,
@@ -46,11 +50,15 @@ __all__ = [
     "DeviceNotConnectedError",
     "Estimate",
     "FakeArm",
+    "GraspConfig",
     "Gripper",
     "IKResult",
     "InvalidInputError",
     "MissingDependencyError",
+    "NoFeasibleGrasp",
+    "ObjectModel",
     "ObjectNotFoundError",
+    "Plane",
     "Pose9D",
     "ProMPose",
     "PromposeError",
@@ -62,4 +70,5 @@ __all__ = [
     "UnsafeCommandError",
     "__version__",
     "load_robot",
+    "plan_grasps",
 ]

@@ -1,7 +1,7 @@
 """Grasp planning benchmark on the sim scenes: time to generate, collision-check and IK-filter 500 candidates,
 and the fraction of candidates rejected per reason.
 
-    python -m prompose_grasp.grasp.bench --repeat 5 --json grasp_bench.json
+    python -m sim.bench_grasp --repeat 5 --json grasp_bench.json
 
 Inputs are the sim's ground truth, named **oracle** here: each object's true 9-DoF box and its true mesh (as
 the estimator's scaled prior would be), the supports as fixture boxes, the robot base from
@@ -18,7 +18,7 @@ For every object of a scene as the target (the others are obstacles), with `max_
 - `scene_ms`: building the `CollisionScene` (voxelising the points, fcl objects), once per target;
 - rejection fractions from one `exhaustive` run (every candidate checked to the end, arm included).
 
-This module imports `sim` (a benchmark, not library code); the library itself never does.
+It lives in `sim` because it builds sim scenes; the library itself never imports `sim`.
 """
 
 from __future__ import annotations
