@@ -24,6 +24,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_track(sub)
     _add_eval_nocs(sub)
     _add_bench(sub)
+    # `train` parses its own arguments (prompose_grasp.perception.train) so that torch loads only when used.
+    sub.add_parser("train", help="train the ProM-Pose network on a synthetic dataset (see: train --help)")
     return parser
 
 
@@ -193,6 +195,11 @@ def _run_eval_nocs(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["train"]:
+        from prompose_grasp.perception import train
+
+        return train.main(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(

@@ -35,9 +35,10 @@ from prompose_grasp.errors import PromposeError
 from prompose_grasp.eval.baselines import obb_baseline
 from prompose_grasp.eval.nocs import IOU_MODES, compute_nocs_map
 from prompose_grasp.eval.report import format_nocs_table
-from prompose_grasp.eval.synthetic import SyntheticFrame, nocs_image_result, read_split, scene_frames
+from prompose_grasp.eval.synthetic import nocs_image_result
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.pointcloud import back_project
+from prompose_grasp.perception.dataset import SyntheticFrame, read_split, scene_frames
 from prompose_grasp.perception.estimator import ProMPose
 from prompose_grasp.perception.priors import ShapePrior
 

@@ -75,8 +75,8 @@ def sim_dataset(tmp_path_factory):
 @pytest.mark.sim
 @pytest.mark.slow
 def test_load_tracks_from_a_generated_dataset(sim_dataset):
+    from prompose_grasp.perception.dataset import read_split
     from prompose_grasp.perception.network import load_tracks
-    from prompose_grasp.perception.network.data import read_split
     from prompose_grasp.perception.text import default_text_encoder
 
     split = read_split(sim_dataset)

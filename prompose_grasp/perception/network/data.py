@@ -16,7 +16,6 @@ tracks hold only those (distractors are dropped).
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
@@ -31,6 +30,7 @@ from torch import Tensor
 from prompose_grasp.errors import InvalidInputError, UnknownNameError
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import back_project, farthest_point_sampling, robust_descriptor
+from prompose_grasp.perception.dataset import GroundTruthObject, read_split, scene_frames
 from prompose_grasp.perception.network.config import NetworkConfig
 from prompose_grasp.perception.network.losses import symmetry_codes
 from prompose_grasp.perception.priors import PriorLibrary
@@ -47,7 +47,6 @@ __all__ = [
     "make_windows",
     "object_crop",
     "observed_points",
-    "read_split",
 ]
 
 log = logging.getLogger(__name__)
@@ -169,16 +168,6 @@ class NetworkBatch:
         }
 
 
-def read_split(data_dir: str | Path) -> dict[str, Any]:
-    """`DIR/split.json` of a dataset written by `python -m sim.dataset`."""
-    path = Path(data_dir) / "split.json"
-    if not path.is_file():
-        raise InvalidInputError(
-            f"{path} not found: is {data_dir} a dataset written by `python -m sim.dataset`?"
-        )
-    return json.loads(path.read_text())
-
-
 def object_crop(rgb: np.ndarray, mask: np.ndarray, crop_px: int) -> np.ndarray:
     """The object-centric crop: (H, W, 3) uint8 RGB and (H, W) bool mask -> (crop_px, crop_px, 3) uint8.
 
@@ -212,13 +201,6 @@ def observed_points(
     elif len(pts) < n:
         pts = np.resize(pts, (n, 3))
     return pts.astype(np.float32)
-
-
-def _png(path: Path) -> np.ndarray:
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InvalidInputError(f"{path}: missing or unreadable image")
-    return img
 
 
 def _split_categories(split: dict[str, Any], name: str) -> set[str]:
@@ -272,39 +254,27 @@ def load_tracks(
     tokens_cache: dict[str, np.ndarray] = {}
     tracks: list[ObjectTrack] = []
     for i_scene, scene in enumerate(scenes):
-        folder = Path(data_dir) / scene
-        metas = sorted(folder.glob("*-meta.json"))
-        if not metas:
-            raise InvalidInputError(f"{folder}: no frames (NNNNNN-meta.json)")
         per_object: dict[int, dict[str, list[Any]]] = {}
-        objects: dict[int, dict[str, Any]] = {}
-        for meta_path in metas:
-            meta = json.loads(meta_path.read_text())
-            stem = str(meta_path)[: -len("-meta.json")]
-            rgb = np.ascontiguousarray(_png(Path(stem + "-color.png"))[..., ::-1])
-            depth = _png(Path(stem + "-depth.png")).astype(np.float32) * np.float32(meta["depth_scale_m"])
-            instance_mask = _png(Path(stem + "-mask.png"))  # ground truth: plays the grounding step
-            K = np.asarray(meta["K"], dtype=np.float64)
-            intr = CameraIntrinsics(
-                K[0, 0], K[1, 1], K[0, 2], K[1, 2], int(meta["width"]), int(meta["height"])
-            )
-            for obj in meta["objects"]:
-                if obj["category"] not in categories:
+        objects: dict[int, GroundTruthObject] = {}
+        for sf in scene_frames(data_dir, scene):
+            frame = sf.frame
+            for obj in sf.ground_truth_objects:
+                if obj.category not in categories:
                     continue
-                oid = int(obj["id"])
+                oid = obj.instance_id
                 objects.setdefault(oid, obj)
                 rec = per_object.setdefault(oid, {k: [] for k in ("crop", "points", "R", "t", "size")})
-                mask = instance_mask == oid
+                mask = sf.ground_truth_instance_mask == oid  # ground truth: plays the grounding step
                 pts = (
-                    observed_points(depth, intr, mask, config.observed_points, min_points)
+                    observed_points(frame.depth_m, frame.intrinsics, mask, config.observed_points, min_points)
                     if mask.any()
                     else None
                 )
                 rec["points"].append(pts)
-                rec["crop"].append(object_crop(rgb, mask, config.crop_px) if pts is not None else None)
-                rec["R"].append(obj["R"])
-                rec["t"].append(obj["t"])
-                rec["size"].append(obj["size"])
+                rec["crop"].append(object_crop(frame.rgb, mask, config.crop_px) if pts is not None else None)
+                rec["R"].append(obj.pose.R)
+                rec["t"].append(obj.pose.t)
+                rec["size"].append(obj.pose.size)
         for oid, rec in per_object.items():
             valid = np.array([p is not None for p in rec["points"]])
             if not valid.any():
@@ -318,7 +288,7 @@ def load_tracks(
                 else:
                     rec["points"][f], rec["crop"][f] = rec["points"][last], rec["crop"][last]
             obj = objects[oid]
-            prompt = str(obj["prompt"])
+            prompt = obj.prompt
             if prompt not in tokens_cache:
                 tokens_cache[prompt] = np.asarray(text_encoder.encode_tokens(prompt), dtype=np.float32)
             prior = library.generate(
@@ -328,9 +298,9 @@ def load_tracks(
                 ObjectTrack(
                     scene=scene,
                     instance_id=oid,
-                    category=str(obj["category"]),
+                    category=obj.category,
                     prompt=prompt,
-                    symmetry=str(obj["symmetry"]),
+                    symmetry=obj.symmetry,
                     crops=np.stack(rec["crop"]),
                     points=np.stack(rec["points"]),
                     frame_valid=valid,
