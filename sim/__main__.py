@@ -1,7 +1,10 @@
 """`python -m sim view --scene FILE --out img.png`: render a scenario for a person to look at.
 
 Each camera gives a row: colour (with ground-truth boxes and names when --boxes) and colourised depth after
-the camera's noise model. `pick` arrives with the arm and gripper.
+the camera's noise model.
+
+`python -m sim pick --scene FILE --command "..." --out DIR --seed N [--video]`: one closed-loop language
+pick-and-place episode (`sim.pick`), writing DIR/summary.json, overlay_0.png and optionally episode.mp4.
 """
 
 from __future__ import annotations
@@ -44,9 +47,25 @@ def _view(args: argparse.Namespace) -> int:
     return 0
 
 
+def _pick(args: argparse.Namespace) -> int:
+    from sim.pick import run_episode
+
+    def show(event) -> None:
+        print(f"[{100 * event.fraction:3.0f}%] {event.stage:8s} {event.message}", flush=True)
+
+    result = run_episode(args.scene, args.command, args.out, seed=args.seed, video=args.video, on_event=show)
+    s = result.summary
+    print(
+        f"{'success' if s['success'] else 'FAILED'}: {s['outcome']['reason']} ({s['outcome']['message']}); "
+        f"lift {100 * s['lift_height_m']:.1f} cm; sim {s['sim_time_s']:.1f} s in "
+        f"{s['timings_s']['episode_wall']:.1f} s wall; wrote {args.out}/summary.json"
+    )
+    return 0 if s["success"] else 1
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m sim", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="subcommand", required=True)
     view = sub.add_parser("view", help="render a scene file to a PNG")
     view.add_argument("--scene", required=True, help="scene file (.yaml/.yml/.json)")
     view.add_argument("--out", required=True, help="output PNG")
@@ -55,10 +74,16 @@ def main(argv: list[str] | None = None) -> int:
         "--seed", type=int, default=None, help="placement/appearance/noise seed (default: file's)"
     )
     view.add_argument("--boxes", action="store_true", help="overlay ground-truth 9-DoF boxes")
+    pick = sub.add_parser("pick", help="run one closed-loop language pick-and-place episode")
+    pick.add_argument("--scene", required=True, help="scene file (.yaml/.yml/.json) with a robot and gripper")
+    pick.add_argument("--command", required=True, help='free text, e.g. "pick up the red mug"')
+    pick.add_argument("--out", required=True, help="output folder (summary.json, overlay_0.png, episode.mp4)")
+    pick.add_argument("--seed", type=int, default=None, help="scene/noise seed (default: file's)")
+    pick.add_argument("--video", action="store_true", help="also write episode.mp4")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
-        return _view(args)
+        return _view(args) if args.subcommand == "view" else _pick(args)
     except PromposeError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

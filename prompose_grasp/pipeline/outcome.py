@@ -1,0 +1,158 @@
+"""What a pick-and-place run returns (`PickOutcome`) and what it reports while it runs (`ProgressEvent`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from prompose_grasp.errors import InvalidInputError
+
+__all__ = ["REASONS", "STAGES", "AttemptRecord", "PickOutcome", "ProgressEvent", "Reason"]
+
+#: Why a run ended. "success" is the only good one; the others say which stage gave up.
+Reason = Literal[
+    "success",
+    "not_found",
+    "no_feasible_grasp",
+    "ik_failed",
+    "slipped",
+    "collision",
+    "timeout",
+    "camera_failed",
+]
+REASONS: tuple[str, ...] = (
+    "success",
+    "not_found",
+    "no_feasible_grasp",
+    "ik_failed",
+    "slipped",
+    "collision",
+    "timeout",
+    "camera_failed",
+)
+#: Stages a `ProgressEvent` can name, in the order a run goes through them.
+STAGES: tuple[str, ...] = ("parse", "observe", "estimate", "plan", "execute", "verify", "place", "done")
+
+
+@dataclass(frozen=True)
+class ProgressEvent:
+    """One step of a run, for a live display.
+
+    Attributes:
+        stage: one of `STAGES`.
+        message: what happens, in words ("grasp 1/10 (antipodal, quality 0.82)").
+        fraction: rough overall progress in [0, 1].
+        attempt: 1-based attempt number (0 before the first attempt).
+    """
+
+    stage: str
+    message: str
+    fraction: float
+    attempt: int = 0
+
+    def __post_init__(self) -> None:
+        if self.stage not in STAGES:
+            raise InvalidInputError(
+                f"ProgressEvent.stage must be one of {', '.join(STAGES)}, got {self.stage!r}"
+            )
+        if not 0.0 <= self.fraction <= 1.0:
+            raise InvalidInputError(f"ProgressEvent.fraction must be in [0, 1], got {self.fraction}")
+
+
+@dataclass(frozen=True, eq=False)
+class AttemptRecord:
+    """One grasp attempt: which grasp, how it ended.
+
+    Attributes:
+        attempt: 1-based attempt number.
+        grasp: the `prompose_grasp.grasp.Grasp` executed (or tried).
+        result: "success" or a failure `Reason` of this attempt.
+        message: details in words.
+        gripper_width_m: jaw opening after closing [m] (0 for suction / not closed).
+    """
+
+    attempt: int
+    grasp: Any
+    result: str
+    message: str
+    gripper_width_m: float = 0.0
+
+
+@dataclass(frozen=True, eq=False)
+class PickOutcome:
+    """How a pick-and-place run ended. Returned, never raised, for every expected failure.
+
+    Attributes:
+        reason: one of `REASONS`; "success" when the object was picked (and placed, for place commands).
+        success: reason == "success".
+        message: what happened, in words (the last failure's details when it failed).
+        command: the parsed `Command`, or None when the text could not be parsed.
+        estimates: every `Estimate` of the target used, in order (camera frame of its frame).
+        T_base_cams: (4, 4) `T_base_cam` of the frame of each estimate [m].
+        attempts: the `AttemptRecord`s, in order.
+        grasp: the grasp that held the object, or None.
+        place: the `PlacePose` used, or None.
+        timings_s: wall time per stage {"observe", "estimate", "plan", "execute", "verify", "total"} [s].
+    """
+
+    reason: str
+    message: str
+    command: Any = None
+    estimates: tuple[Any, ...] = ()
+    T_base_cams: tuple[np.ndarray, ...] = ()
+    attempts: tuple[AttemptRecord, ...] = ()
+    grasp: Any = None
+    place: Any = None
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.reason not in REASONS:
+            raise InvalidInputError(
+                f"PickOutcome.reason must be one of {', '.join(REASONS)}, got {self.reason!r}"
+            )
+
+    @property
+    def success(self) -> bool:
+        return self.reason == "success"
+
+    @property
+    def estimate(self) -> Any:
+        """The last estimate of the target, or None."""
+        return self.estimates[-1] if self.estimates else None
+
+    @property
+    def grasps_tried(self) -> tuple[Any, ...]:
+        return tuple(a.grasp for a in self.attempts)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready summary (no arrays of images)."""
+        est = self.estimate
+        return {
+            "success": self.success,
+            "reason": self.reason,
+            "message": self.message,
+            "command": None
+            if self.command is None
+            else {
+                "text": self.command.text,
+                "action": self.command.action,
+                "object_prompt": self.command.object_prompt,
+                "target": self.command.target,
+            },
+            "n_estimates": len(self.estimates),
+            "estimate_cam": None if est is None else {**est.pose.to_dict(), "prior": est.prior.name},
+            "attempts": [
+                {
+                    "attempt": a.attempt,
+                    "result": a.result,
+                    "message": a.message,
+                    "method": getattr(a.grasp, "method", None),
+                    "quality": None if a.grasp is None else float(a.grasp.quality),
+                    "gripper_width_m": a.gripper_width_m,
+                }
+                for a in self.attempts
+            ],
+            "timings_s": dict(self.timings_s),
+        }

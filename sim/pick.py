@@ -1,0 +1,273 @@
+"""A language pick-and-place episode in MuJoCo: `python -m sim pick --scene FILE --command "..." --out DIR`.
+
+The library's `PickAndPlace` runs closed loop on the scene's `SimArm`, gripper and fixed camera with the
+embedded estimator; nothing in the loop reads ground truth. Only after the run does `evaluate` (named so) read
+the simulator's poses: which object the command meant (by its scene prompt), how high it was lifted, and its
+ground-truth 9-DoF box next to the first estimate.
+
+Writes `DIR/summary.json` (`success`, `lift_height_m`, `outcome`, `estimate` vs `ground_truth` 9-DoF in the
+camera frame, timings, sim time), `DIR/overlay_<k>.png` (each estimate in green, ground truth in red) and, with
+`video=True`, `DIR/episode.mp4` (OpenCV's mp4v writer; the fixed camera every 0.1 s of sim time).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from prompose_grasp.errors import InvalidInputError
+from prompose_grasp.geometry.se3 import invert_T
+from prompose_grasp.grasp import PlaceTarget
+from prompose_grasp.pipeline.outcome import PickOutcome, ProgressEvent
+from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
+from sim.arm import SimArm
+from sim.camera import SimCamera
+from sim.grippers import ParallelJawGripper, SuctionGripper
+from sim.scene_file import load_world
+
+__all__ = ["EpisodeResult", "evaluate_target", "place_targets_of", "run_episode"]
+
+logger = logging.getLogger(__name__)
+
+#: A pick counts as lifted when the object's centre rose at least this much (half the planner's 10 cm lift).
+MIN_LIFT_M = 0.05
+
+
+@dataclass(frozen=True, eq=False)
+class EpisodeResult:
+    """One episode: the library's outcome and the evaluation against ground truth (after the run)."""
+
+    outcome: PickOutcome
+    summary: dict[str, Any]
+    out_dir: Path | None
+
+
+def place_targets_of(world) -> dict[str, PlaceTarget]:
+    """The scene's place targets as the library's `PlaceTarget`s in the arm's base frame (scene layout: what a
+    user measures once when setting up a cell, not a perception result)."""
+    T_base_world = invert_T(world.T_world_base)
+    kinds = {"bin": "bin", "table": "surface", "conveyor": "surface", "pallet": "pallet"}
+    out: dict[str, PlaceTarget] = {}
+    for support in world.place_targets.values():
+        kind = kinds.get(support.kind)
+        if kind is None or support.kind in out:
+            continue
+        out[support.kind] = PlaceTarget(
+            kind,
+            T_base_world @ support.T_world_surface,
+            support.half_extents_xy_m,
+            float(support.wall_height_m),
+        )
+    return out
+
+
+def _target_name(world, command_text: str, first_estimate_world: np.ndarray | None) -> str:
+    """Evaluation only: the object the command meant, by the scene prompts (longest contained prompt), else
+    the object nearest the first estimate."""
+    text = command_text.lower()
+    named = [o for o in world.objects if o.prompt and o.prompt.lower() in text]
+    if named:
+        return max(named, key=lambda o: len(o.prompt)).name
+    if first_estimate_world is None:
+        raise InvalidInputError(
+            f"no scene object's prompt appears in {command_text!r} and nothing was estimated"
+        )
+    d = [np.linalg.norm(world.T_world_obj(o.name)[:3, 3] - first_estimate_world) for o in world.objects]
+    return world.objects[int(np.argmin(d))].name
+
+
+def evaluate_target(world, name: str, T_world_obj_start: np.ndarray) -> dict[str, Any]:
+    """Evaluation only (ground truth): how far object `name` rose and moved since the start."""
+    T_now = world.T_world_obj(name)
+    return {
+        "object": name,
+        "lift_height_m": float(T_now[2, 3] - T_world_obj_start[2, 3]),
+        "start_world_m": T_world_obj_start[:3, 3].tolist(),
+        "end_world_m": T_now[:3, 3].tolist(),
+    }
+
+
+def _pose_dict(pose) -> dict[str, Any]:
+    return {
+        "R": np.asarray(pose.R).tolist(),
+        "t": np.asarray(pose.t).tolist(),
+        "size": np.asarray(pose.size).tolist(),
+    }
+
+
+class _KeepFrames:
+    """Passes captures through and keeps them (the overlay is drawn on the frame that was estimated)."""
+
+    def __init__(self, camera):
+        self.camera = camera
+        self.frames: list[Any] = []
+
+    def capture(self):
+        frame = self.camera.capture()
+        self.frames.append(frame)
+        return frame
+
+
+class _Recorder:
+    """Renders the fixed camera every `every_s` of sim time (a step hook) for the episode video."""
+
+    def __init__(self, world, camera: str, every_s: float = 0.1):
+        self.world = world
+        self.camera = camera
+        self.every = max(1, round(every_s / float(world.model.opt.timestep)))
+        self.frames: list[np.ndarray] = []
+        self._n = 0
+
+    def __call__(self, world) -> None:
+        self._n += 1
+        if self._n % self.every == 0:
+            self.frames.append(world.render_clean(self.camera)[0])
+
+    def write(self, path: Path, fps: float = 10.0) -> bool:
+        if not self.frames:
+            return False
+        h, w = self.frames[0].shape[:2]
+        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+        if not writer.isOpened():
+            logger.warning("OpenCV has no mp4 writer here; no video written")
+            return False
+        for f in self.frames:
+            writer.write(np.ascontiguousarray(f[..., ::-1]))
+        writer.release()
+        return True
+
+
+def run_episode(
+    scene: str | Path,
+    command: str,
+    out_dir: str | Path | None = None,
+    seed: int | None = None,
+    video: bool = False,
+    camera: str = "front",
+    estimator: Any = None,
+    config: PickConfig | None = None,
+    on_event: Callable[[ProgressEvent], None] | None = None,
+    camera_wrapper: Callable[[Any], Any] | None = None,
+) -> EpisodeResult:
+    """Build the scene, run the library's closed loop on it, then evaluate against ground truth.
+
+    Args:
+        scene: scene file; command: free text; out_dir: where to write (None: write nothing).
+        seed: placement / appearance / sensor-noise seed (default: the file's).
+        video: also write `episode.mp4`.
+        camera: the fixed camera the loop observes with.
+        estimator: default `ProMPose.default()`.
+        config: `PickConfig`; on_event: progress callback.
+        camera_wrapper: wraps the `SimCamera` (fault injection in tests: dropped frames, depth holes).
+    """
+    from prompose_grasp.perception.estimator import ProMPose
+
+    t_wall = time.perf_counter()
+    estimator = estimator or ProMPose.default()
+    world = load_world(scene, seed=seed)
+    with world:
+        info = world.robot
+        if info is None or info.gripper is None:
+            raise InvalidInputError(f"scene {scene} has no robot with a gripper")
+        rng = np.random.default_rng(seed)
+        sim_cam = SimCamera(world, camera, rng=rng)
+        gripper = ParallelJawGripper(world) if info.gripper == "parallel_jaw" else SuctionGripper(world)
+        arm = SimArm(world)
+        recorder = _Recorder(world, camera) if video else None
+        start = {o.name: world.T_world_obj(o.name) for o in world.objects}
+        t0_sim = float(world.data.time)
+        with arm, gripper, sim_cam:
+            keeper = _KeepFrames(camera_wrapper(sim_cam) if camera_wrapper is not None else sim_cam)
+            cam = keeper
+            pnp = PickAndPlace(
+                arm,
+                gripper,
+                cam,
+                estimator,
+                info.robot,
+                info.gripper,
+                place_targets=place_targets_of(world),
+                config=config,
+                on_event=on_event,
+            )
+            if recorder is not None:
+                world.add_step_hook(recorder)
+            outcome = pnp.run(command)
+            if recorder is not None:
+                world.remove_step_hook(recorder)
+            # Let the scene come to rest so a lost object has fallen before it is measured.
+            world.step(int(0.5 / world.model.opt.timestep))
+        # ----- evaluation (ground truth, after the run) -----
+        first = outcome.estimates[0] if outcome.estimates else None
+        first_world = None
+        if first is not None:
+            first_world = (
+                world.T_world_base @ np.append(first.pose.transformed(outcome.T_base_cams[0]).t, 1.0)
+            )[:3]
+        name = _target_name(world, command, first_world)
+        ev = evaluate_target(world, name, start[name])
+        lifted = ev["lift_height_m"] >= MIN_LIFT_M
+        gt_cam = None
+        overlays = []
+        if first is not None:
+            T_cam_world = invert_T(world.T_world_base @ outcome.T_base_cams[0])
+            from prompose_grasp.geometry import Pose9D
+
+            T_cam_obj = T_cam_world @ start[name]
+            size = next(g.size_m for g in world.ground_truth(camera) if g.name == name)
+            gt_cam = Pose9D(T_cam_obj[:3, :3], T_cam_obj[:3, 3], np.asarray(size, dtype=np.float64))
+        action = outcome.command.action if outcome.command is not None else None
+        success = outcome.success and (lifted if action == "pick" else True)
+        if action in ("place", "stack") and outcome.command is not None:
+            support = next(
+                (s for s in world.place_targets.values() if s.kind == outcome.command.target), None
+            )
+            if support is not None:
+                p = invert_T(support.T_world_surface) @ np.append(ev["end_world_m"], 1.0)
+                inside = bool(np.all(np.abs(p[:2]) <= support.half_extents_xy_m) and -0.01 < p[2] < 0.3)
+                ev["inside_target"] = inside
+                success = outcome.success and inside
+        timing = arm.timing()
+        summary = {
+            "scene": str(scene),
+            "seed": seed,
+            "command": command,
+            "success": bool(success),
+            "lift_height_m": ev["lift_height_m"],
+            "outcome": outcome.to_dict(),
+            "evaluation": ev,
+            "estimate": None if first is None else _pose_dict(first.pose),
+            "ground_truth": None if gt_cam is None else _pose_dict(gt_cam),
+            "frame": "camera (OpenCV) of the first observation",
+            "timings_s": {**outcome.timings_s, "episode_wall": time.perf_counter() - t_wall},
+            "sim_time_s": float(world.data.time) - t0_sim,
+            "arm_sim_time_s": timing.sim_time_s,
+            "arm_wall_time_s": timing.wall_time_s,
+        }
+        if out_dir is not None:
+            out = Path(out_dir)
+            out.mkdir(parents=True, exist_ok=True)
+            if first is not None and keeper.frames:
+                from prompose_grasp.perception.overlay import ESTIMATE_RGB, GROUND_TRUTH_RGB, draw_poses
+
+                k_frame = min(len(keeper.frames), pnp.config.observe_frames) - 1
+                frame = keeper.frames[k_frame]
+                poses = [first.pose] + ([gt_cam] if gt_cam is not None else [])
+                colors = [ESTIMATE_RGB] + ([GROUND_TRUTH_RGB] if gt_cam is not None else [])
+                labels = ["estimate", "ground truth"][: len(poses)]
+                drawn = draw_poses(frame.rgb, frame.intrinsics, poses, colors, labels)
+                cv2.imwrite(str(out / "overlay_0.png"), drawn[..., ::-1])
+                overlays.append("overlay_0.png")
+            summary["overlays"] = overlays
+            if recorder is not None:
+                summary["video"] = "episode.mp4" if recorder.write(out / "episode.mp4") else None
+            (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    return EpisodeResult(outcome, summary, None if out_dir is None else Path(out_dir))
