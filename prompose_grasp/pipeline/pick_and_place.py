@@ -238,6 +238,7 @@ class PickAndPlace:
                     known = ", ".join(sorted(self.place_targets)) or "none configured"
                     raise _Abort("not_found", f"no place target {cmd.target!r} (known: {known})")
             last = _Abort("not_found", "no attempt was made")
+            q_home = np.asarray(self.arm.joint_positions(), dtype=np.float64)
             for round_ in range(self.config.max_estimates):
                 self._check_time(t_start)
                 obs = self._observe_and_estimate(cmd.object_prompt, timings, state, round_)
@@ -249,6 +250,7 @@ class PickAndPlace:
                         raise
                     last = exc
                     logger.info("round %d failed: %s (%s)", round_ + 1, exc.reason, exc.message)
+                    self._go_home(q_home)
             raise last
         except _Abort as exc:
             return finish(exc.reason, exc.message)
@@ -463,6 +465,14 @@ class PickAndPlace:
         finally:
             timings["verify"] += time.perf_counter() - t0
         return width
+
+    def _go_home(self, q_home: np.ndarray) -> None:
+        """Back to where the run started, out of the camera's view, before observing again."""
+        cfg = self.config
+        try:
+            self.arm.move_joints(q_home, cfg.joint_speed_rad_s, cfg.joint_accel_rad_s2)
+        except (UnreachableError, UnsafeCommandError) as exc:
+            logger.warning("could not return to the start configuration: %s", exc)
 
     def _release_and_back_off(self, grasp: Any) -> None:
         self.gripper.open()

@@ -1,0 +1,164 @@
+"""PickAndPlace on fakes: each fault ends with its typed reason, the happy path succeeds, nothing raises.
+
+The estimator here is an oracle stub (named so): it returns a fixed box, so the tests exercise the loop's
+control flow and reasons, not perception (the sim episode test does that end to end).
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import trimesh
+
+from prompose_grasp.errors import CameraError, ObjectNotFoundError
+from prompose_grasp.geometry import Pose9D
+from prompose_grasp.geometry.camera import CameraIntrinsics
+from prompose_grasp.geometry.se3 import invert_T, make_T
+from prompose_grasp.grasp import ParallelJawGeometry
+from prompose_grasp.pipeline.command import Command
+from prompose_grasp.pipeline.outcome import REASONS, STAGES, PickOutcome
+from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
+from prompose_grasp.robot import FakeArm, FakeGripper, RGBDFrame, load_robot
+
+JAW = ParallelJawGeometry()
+ROBOT = load_robot("ur5e", tcp_offset=JAW.T_flange_tcp)
+R_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # object +y -> base +z
+# A camera 1 m above the table (base z = 0), looking straight down.
+T_BASE_CAM = make_T(np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]]), [-0.5, 0.0, 1.0])
+K = CameraIntrinsics(fx=300.0, fy=300.0, cx=79.5, cy=59.5, width=160, height=120)
+PICK = Command("pick up the box", "pick", "the box", False, None, "", 1.0, 0.0)
+
+
+class Camera:
+    """Frames of a flat table 1 m below; `fail` captures raise CameraError first (dropped frames)."""
+
+    def __init__(self, fail: int = 0, T_base_cam=T_BASE_CAM):
+        self.fail = fail
+        self.T_base_cam = T_base_cam
+        self.calls = 0
+
+    def capture(self) -> RGBDFrame:
+        self.calls += 1
+        if self.calls <= self.fail:
+            raise CameraError("frame dropped")
+        depth = np.full((K.height, K.width), 1.0, dtype=np.float32)
+        rgb = np.zeros((K.height, K.width, 3), dtype=np.uint8)
+        return RGBDFrame(rgb, depth, K, float(self.calls), self.T_base_cam)
+
+
+class OracleEstimator:
+    """Returns a box at `t_base` (base frame) in the camera frame of each frame; or raises not-found."""
+
+    def __init__(self, t_base=(-0.5, 0.15, 0.03), found: bool = True):
+        self.t_base = np.asarray(t_base, dtype=np.float64)
+        self.found = found
+        self.calls = 0
+
+    def estimate(self, frame, prompt):
+        self.calls += 1
+        if not self.found:
+            raise ObjectNotFoundError(f"no object matches {prompt!r}")
+        T_cam_base = invert_T(frame.T_base_cam)
+        pose = Pose9D(R_UP, self.t_base, [0.05, 0.06, 0.06]).transformed(T_cam_base)
+        mesh = trimesh.creation.box(extents=pose.size)
+        mesh.apply_transform(pose.to_matrix())
+        n_cam = T_cam_base[:3, :3] @ np.array([0.0, 0.0, 1.0])
+        plane = SimpleNamespace(normal_cam=n_cam, offset_m=-float(n_cam @ T_cam_base[:3, 3]))
+        prior = SimpleNamespace(name="box", symmetry="box")
+        return SimpleNamespace(pose=pose, prior=prior, mesh_cam=mesh, support_plane=plane)
+
+
+def _run(
+    camera=None, estimator=None, object_width_m=0.05, config=None, command=PICK
+) -> tuple[PickOutcome, list]:
+    events: list = []
+    cfg = config or PickConfig(reobserve=False, max_estimates=2, grasps_per_estimate=2)
+    with FakeArm(ROBOT) as arm, FakeGripper(object_width_m=object_width_m) as gripper:
+        pnp = PickAndPlace(
+            arm,
+            gripper,
+            camera or Camera(),
+            estimator or OracleEstimator(),
+            ROBOT,
+            "parallel_jaw",
+            config=cfg,
+            on_event=events.append,
+        )
+        outcome = pnp.run(command)
+    return outcome, events
+
+
+def test_happy_path_succeeds_with_events_and_timings():
+    outcome, events = _run()
+    assert outcome.success and outcome.reason == "success", outcome.message
+    assert outcome.grasp is not None and len(outcome.attempts) == 1
+    assert outcome.attempts[0].gripper_width_m == pytest.approx(0.05)
+    assert [e.stage for e in events][0] == "parse" and events[-1].stage == "done"
+    assert all(e.stage in STAGES for e in events)
+    assert set(outcome.timings_s) >= {"observe", "estimate", "plan", "execute", "verify", "total"}
+    assert outcome.timings_s["total"] >= outcome.timings_s["plan"] > 0
+
+
+def test_dropped_frames_are_retried():
+    outcome, _ = _run(camera=Camera(fail=2))
+    assert outcome.success, outcome.message
+
+
+def test_camera_that_always_raises_is_camera_failed():
+    outcome, _ = _run(camera=Camera(fail=10**6))
+    assert outcome.reason == "camera_failed" and not outcome.success
+    assert outcome.estimates == () and outcome.attempts == ()
+
+
+def test_uncalibrated_camera_is_camera_failed():
+    outcome, _ = _run(camera=Camera(T_base_cam=None))
+    assert outcome.reason == "camera_failed"
+
+
+def test_object_not_found():
+    outcome, _ = _run(estimator=OracleEstimator(found=False))
+    assert outcome.reason == "not_found"
+
+
+def test_unreachable_object_is_ik_failed():
+    outcome, _ = _run(estimator=OracleEstimator(t_base=(1.4, 0.0, 0.03)))  # 1.4 m: beyond a UR5e's 0.85 m
+    assert outcome.reason == "ik_failed", outcome.message
+
+
+def test_empty_grasp_is_slipped_after_every_retry():
+    outcome, _ = _run(object_width_m=None)  # the jaws close on nothing
+    assert outcome.reason == "slipped"
+    assert len(outcome.attempts) == 2 and all(a.result == "slipped" for a in outcome.attempts)
+    assert len(outcome.estimates) == 2  # a slip starts a new round with a fresh estimate
+
+
+def test_reobservation_of_an_unmoved_object_is_slipped():
+    # The gripper reports a hold, but the camera still sees the object where it stood.
+    outcome, _ = _run(config=PickConfig(reobserve=True, max_estimates=1, grasps_per_estimate=1))
+    assert outcome.reason == "slipped" and "still where it stood" in outcome.message
+
+
+def test_timeout():
+    outcome, _ = _run(config=PickConfig(timeout_s=1e-9, reobserve=False))
+    assert outcome.reason == "timeout"
+
+
+def test_place_without_a_configured_target_is_not_found():
+    cmd = Command("put the box in the bin", "place", "the box", False, "bin", "the bin", 1.0, 1.0)
+    outcome, _ = _run(command=cmd)
+    assert outcome.reason == "not_found" and "bin" in outcome.message
+
+
+def test_reasons_are_the_issue_list():
+    assert REASONS == (
+        "success",
+        "not_found",
+        "no_feasible_grasp",
+        "ik_failed",
+        "slipped",
+        "collision",
+        "timeout",
+        "camera_failed",
+    )
