@@ -21,6 +21,7 @@ from prompose_grasp.perception.grounding.describe import (
     dominant_colour,
     shape_family,
     size_class,
+    top_height_histogram,
 )
 from prompose_grasp.perception.grounding.language import ParsedPrompt, parse_prompt
 from prompose_grasp.perception.grounding.plane import PlaneFrame, fit_support_plane
@@ -187,10 +188,13 @@ class Grounder:
         if noun.strip():
             family, score = library.match(noun)[0]
             if score >= library.threshold:
-                t = np.asarray(library.family_prior(family).typical_size_m, dtype=np.float64)
+                prior = library.family_prior(family)
+                t = np.asarray(prior.typical_size_m, dtype=np.float64)
                 # canonical frames are +y up: footprint (x, z) sorted, then the height y
                 extent = np.array([max(t[0], t[2]), min(t[0], t[2]), t[1]])
-                out = NounPrior(family, float(score), extent)
+                P = np.asarray(prior.points, dtype=np.float64) * t  # unit box -> metres, centred
+                coords = np.column_stack([P[:, 0], P[:, 2], P[:, 1] + 0.5 * t[1]])
+                out = NounPrior(family, float(score), extent, top_height_histogram(coords, t[1], extent[0]))
         with self._priors_lock:
             self._noun_priors[noun] = out
         return out
@@ -236,6 +240,7 @@ class Grounder:
         colour, colour_rgb, shares = dominant_colour(rgb[ys[::step], xs[::step]])
         size = size_class(extent)
         family = shape_family(coords, extent)
+        tops = top_height_histogram(coords, float(extent[2]), float(extent[0]))
         attrs = CandidateAttributes(
             colour_name=colour,
             colour_rgb=colour_rgb,
@@ -245,6 +250,7 @@ class Grounder:
             extent_m=extent,
             num_pixels=len(ys),
             description=describe_text(size, colour, family),
+            top_height_histogram=tops,
         )
         return attrs, shares, xy
 
@@ -326,6 +332,7 @@ class Grounder:
             extents_m=np.stack([d[0].extent_m for d in described]),
             plane_xy_m=np.stack([d[2] for d in described]),
             distance_m=np.array([float(np.linalg.norm(d[0].centroid_cam)) for d in described]),
+            top_heights=np.stack([d[0].top_height_histogram for d in described]),
         )
 
     def _prior_for(self, parsed: ParsedPrompt, has_plane: bool) -> NounPrior | None:

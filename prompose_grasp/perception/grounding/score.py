@@ -9,6 +9,7 @@ cosine):
 | colour | +1 when >= 40 % of the mask has an asked colour, falling linearly to -1 at 0 % | 1.5 |
 | shape | fit of the measured shape family to the noun: p(family | noun) / max p, to [-1, 1] | 0.5 |
 | metric size | log-normal fit of the measured extents to the typical size of the noun's prior family | 1.5 |
+| top heights | overlap of the candidate's and the family mesh's top-height histograms, to [-1, 1] | 1.5 |
 | size, superlative | rank among the plausible candidates: +1 the extreme, -1 the other end | 2.0 |
 | size, adjective | "small" +1 for size class small, 0 medium, -1 large (and mirrored for "large") | 0.5 |
 | position | rank among the plausible candidates ("nearest", "leftmost", ...), like superlatives | 1.5 |
@@ -35,6 +36,14 @@ has a size word ("the small mug": the user then says the size is not typical).
 Measured on 60 generated scenes (seed 5, 498 category prompts, `python -m
 prompose_grasp.perception.grounding.bench`): top-1 from 51.8 % to 78.3 %; weights 1.0 / 2.0 gave 73.9 / 80.1 %
 but a heavier size term starts to overrule colour words, so 1.5.
+
+Top heights. The same family's mean mesh (`ShapePrior.points` at the typical size, +y up) gives a top-height
+histogram (`describe.top_height_histogram`); the term is 2 sum_i min(p_i, q_i) - 1 with the candidate's p:
++1 for identical histograms, -1 for disjoint ones. It tells a laptop (low base, thin screen) from a carton,
+a bottle (shoulder below the neck) from a can, a camera (hump over the body) from a mug. Measured like the
+size term on the 60 scenes: 78.3 % -> 85.9 % (test split 83.0 % -> 95.5 %); weights 1.0 / 2.0 gave
+84.9 / 86.9 %; 1.5 leaves room for colour words. A per-height footprint-length profile (bottle neck, mug
+handle) helped mugs (62 -> 75 %) but hurt laptops (96 -> 88 %) and sacks, net -1.4 %, and was dropped.
 
 The returned score is sigmoid(2 (total - 1)): in (0, 1), monotone in the total, comparable within a prompt.
 """
@@ -74,6 +83,7 @@ class ScoringWeights:
     colour: float = 1.5
     shape: float = 0.5
     metric_size: float = 1.5
+    top_heights: float = 1.5
     size_over_sigma: float = 0.35
     size_under_sigma: tuple[float, float, float] = (0.45, 0.8, 0.35)
     size_superlative: float = 2.0
@@ -94,11 +104,13 @@ class NounPrior:
         match_score: its retrieval score (cosine, >= the library's threshold).
         typical_extent_m: (3,) float64 [m] the family's typical extents in the order the candidates are
             measured: footprint length >= footprint width, height (sorted descending without a plane).
+        top_height_histogram: (HEIGHT_BINS,) shares of the family's mean mesh (`describe`), or None.
     """
 
     family: str
     match_score: float
     typical_extent_m: np.ndarray
+    top_height_histogram: np.ndarray | None = None
 
 
 def metric_size_term(extents_m: np.ndarray, typical_extent_m: np.ndarray, w: ScoringWeights) -> np.ndarray:
@@ -119,6 +131,7 @@ class CandidateFeatures:
         size_classes: K size class names.
         families: K shape family names.
         extents_m: (K, 3) footprint length, width, height [m].
+        top_heights: (K, HEIGHT_BINS) top-height histograms (rows sum to 1), or None when not measured.
         plane_xy_m: (K, 2) (right, forward) footprint centres on the support plane [m] (camera x, z without
             a plane).
         distance_m: (K,) distance of the centroids from the camera [m].
@@ -132,6 +145,7 @@ class CandidateFeatures:
     extents_m: np.ndarray
     plane_xy_m: np.ndarray
     distance_m: np.ndarray
+    top_heights: np.ndarray | None = None
 
 
 def _rank_term(values: np.ndarray, direction: int, plausible: np.ndarray) -> np.ndarray:
@@ -166,6 +180,13 @@ def _base_terms(
         )
     if noun_prior is not None and parsed.size is None:
         total += w.metric_size * metric_size_term(feats.extents_m, noun_prior.typical_extent_m, w)
+    if (
+        noun_prior is not None
+        and noun_prior.top_height_histogram is not None
+        and feats.top_heights is not None
+    ):
+        overlap = np.minimum(feats.top_heights, noun_prior.top_height_histogram[None, :]).sum(axis=1)
+        total += w.top_heights * (2.0 * overlap - 1.0)
     if parsed.size is not None and not parsed.size[2]:
         classes = ("small", "medium", "large")
         value = np.array([classes.index(c) - 1.0 for c in feats.size_classes])  # -1, 0, +1

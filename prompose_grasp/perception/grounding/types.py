@@ -144,6 +144,9 @@ class CandidateAttributes:
             width (length >= width) and height above the plane (height only: full extents when no plane).
         num_pixels: pixels in the full-resolution mask.
         description: the generated phrase scored against the prompt ("a small yellow cylinder-shaped object").
+        top_height_histogram: (HEIGHT_BINS,) float64 shares summing to 1 (empty when not measured): the
+            candidate seen from above, the highest point of each footprint cell as a fraction of the height,
+            histogrammed (`describe.top_height_histogram`); a box is all "top", a laptop mostly "low".
     """
 
     colour_name: str
@@ -154,9 +157,13 @@ class CandidateAttributes:
     extent_m: np.ndarray
     num_pixels: int
     description: str
+    top_height_histogram: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "colour_rgb", _frozen(np.asarray(self.colour_rgb, dtype=np.uint8)))
+        object.__setattr__(
+            self, "top_height_histogram", _frozen(np.asarray(self.top_height_histogram, dtype=np.float64))
+        )
         object.__setattr__(self, "centroid_cam", _frozen(np.asarray(self.centroid_cam, dtype=np.float64)))
         object.__setattr__(self, "extent_m", _frozen(np.asarray(self.extent_m, dtype=np.float64)))
 
