@@ -6,7 +6,7 @@ the simulator's poses: which object the command meant (by its scene prompt), how
 ground-truth 9-DoF box next to the first estimate.
 
 Writes `DIR/summary.json` (`success`, `lift_height_m`, `outcome`, `estimate` vs `ground_truth` 9-DoF in the
-camera frame, timings, sim time), `DIR/overlay_<k>.png` (each estimate in green, ground truth in red) and, with
+camera frame, timings, sim time), `DIR/overlay_0.png` (the estimate in green, ground truth in red) and, with
 `video=True`, `DIR/episode.mp4` (OpenCV's mp4v writer; the fixed camera every 0.1 s of sim time).
 """
 

@@ -95,7 +95,7 @@ def test_happy_path_succeeds_with_events_and_timings():
     assert outcome.success and outcome.reason == "success", outcome.message
     assert outcome.grasp is not None and len(outcome.attempts) == 1
     assert outcome.attempts[0].gripper_width_m == pytest.approx(0.05)
-    assert [e.stage for e in events][0] == "parse" and events[-1].stage == "done"
+    assert events[0].stage == "parse" and events[-1].stage == "done"
     assert all(e.stage in STAGES for e in events)
     assert set(outcome.timings_s) >= {"observe", "estimate", "plan", "execute", "verify", "total"}
     assert outcome.timings_s["total"] >= outcome.timings_s["plan"] > 0
