@@ -28,6 +28,7 @@ refused command raises in the arm and leaves it still, and the loop counts it as
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import time
@@ -546,7 +547,7 @@ class PickAndPlace:
             self.gripper.open()
             for seg in motion.segments:
                 self._emit("place" if seg.holding else "execute", f"segment {seg.name}", 0.5, attempt)
-                self._safe(seg.name, lambda seg=seg: self.arm.follow(seg.trajectory))
+                self._safe(seg.name, functools.partial(self.arm.follow, seg.trajectory))
                 if seg.name == "approach":
                     self.gripper.close(cfg.grip_force_n)
                 elif seg.name == "lift":
