@@ -40,9 +40,22 @@ def _dense_surface(prior, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(pts), np.asarray(prior.mesh.face_normals)[face]
 
 
+def _zbuffer_visible(pts: np.ndarray) -> np.ndarray:
+    """(N,) bool: points not hidden behind nearer points of the same cloud, as a depth camera sees them: a
+    z-buffer of 1/300 rad pixels (~3 mm at 0.8 m, several surface samples each); a point is seen when it is
+    within 4 mm of its pixel's nearest depth (the depth change of a slanted surface across one pixel)."""
+    px = np.floor(300.0 * pts[:, :2] / pts[:, 2:3]).astype(np.int64)
+    px -= px.min(axis=0)
+    key = px[:, 0] * (px[:, 1].max() + 1) + px[:, 1]
+    z_min = np.full(int(key.max()) + 1, np.inf)
+    np.minimum.at(z_min, key, pts[:, 2])
+    return pts[:, 2] <= z_min[key] + 0.004
+
+
 def _upright_scene(prior, rng: np.random.Generator):
     """A posed, scaled prior standing on a table seen from 30-65 deg elevation at 0.6-0.9 m, and its visible
-    surface points with axial noise 1 mm + 3.7 mm/m^2 z^2 (RealSense D435-like, docs/sim.md)."""
+    surface points (facing the camera and not hidden by the object itself) with axial noise 1 mm +
+    3.7 mm/m^2 z^2 (RealSense D435-like, docs/sim.md)."""
     elevation = math.radians(rng.uniform(30.0, 65.0))
     up = np.array([0.0, -math.cos(elevation), -math.sin(elevation)])  # table normal, camera frame
     e1 = np.array([1.0, 0.0, 0.0])
@@ -55,10 +68,11 @@ def _upright_scene(prior, rng: np.random.Generator):
         size[2] = size[0]
     t = np.array([rng.uniform(-0.08, 0.08), rng.uniform(-0.05, 0.05), rng.uniform(0.6, 0.9)])
     gt = Pose9D(R, t, size)
-    pts_u, nrm_u = _dense_surface(prior, 12000, int(rng.integers(1 << 30)))
+    pts_u, nrm_u = _dense_surface(prior, 30000, int(rng.integers(1 << 30)))
     pts = gt.points_to_camera(pts_u)
     nrm = (nrm_u / size) @ R.T
     pts = pts[np.einsum("ij,ij->i", nrm, pts) < 0.0]
+    pts = pts[_zbuffer_visible(pts)]
     sigma = 0.001 + 0.0037 * pts[:, 2] ** 2
     pts = (
         pts
@@ -95,6 +109,20 @@ def _iou(pred: Pose9D, gt: Pose9D, symmetry: str) -> float:
     )
 
 
+# Share of the observed points in a mug's handle region (unit-box x > 0.25: the family mug's body ends at
+# x = 0.21) below which the handle counts as hidden and the mug as symmetric about y (the NOCS protocol's
+# handle visibility; sim.dataset uses 20 pixels, ~1 % of a mug's ~2000 pixels at 0.7 m).
+HANDLE_MIN_FRACTION = 0.01
+
+
+def _scored_symmetry(prior, gt: Pose9D, pts: np.ndarray) -> str:
+    """The symmetry the errors are scored with: a mug whose handle is not seen is round about y (NOCS)."""
+    if prior.name != "mug":
+        return prior.symmetry
+    seen = int(np.count_nonzero(gt.points_to_object(pts)[:, 0] / gt.size[0] > 0.25))
+    return prior.symmetry if seen >= HANDLE_MIN_FRACTION * len(pts) else "y_continuous"
+
+
 def _check(result, gt: Pose9D, symmetry: str) -> None:
     p = result.pose
     assert _rotation_error_deg(p, gt, symmetry) < ROT_TOL_DEG
@@ -111,7 +139,7 @@ def test_known_pose_on_support_plane(library: PriorLibrary, family: str) -> None
     for _ in range(2):
         gt, pts, up, plane = _upright_scene(prior, rng)
         result = fit_pose(pts, prior, support_plane_cam=plane)
-        _check(result, gt, prior.symmetry)
+        _check(result, gt, _scored_symmetry(prior, gt, pts))
         assert result.mode == "upright_plane"
         # +y is the support normal
         assert math.degrees(math.acos(min(1.0, float(result.pose.R[:, 1] @ up)))) < UP_TOL_DEG
@@ -145,7 +173,7 @@ def test_warm_start_from_perturbed_pose_converges(library: PriorLibrary) -> None
     )
     result = fit_pose(pts, prior, support_plane_cam=plane, init=init)
     assert result.hypotheses == 1 and result.mode.startswith("warm_")
-    _check(result, gt, prior.symmetry)
+    _check(result, gt, _scored_symmetry(prior, gt, pts))
 
 
 def test_amodal_box_reaches_hidden_bottom(library: PriorLibrary) -> None:

@@ -43,6 +43,7 @@ from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry.pointcloud import farthest_point_sampling, robust_descriptor
 from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.geometry.se3 import project_to_so3, so3_exp
+from prompose_grasp.perception.priors.library import articulated_variants
 from prompose_grasp.perception.priors.prior import SYMMETRIES, ShapePrior
 
 __all__ = ["FitConfig", "FitResult", "FitStage", "canonicalize_symmetry", "fit_pose", "visible_prior_mask"]
@@ -51,6 +52,9 @@ log = logging.getLogger(__name__)
 
 #: Number of yaw hypotheses about the support normal, per symmetry tag (see `_yaw_count`).
 _YAWS = {"none": 8, "box": 4, "y_2fold": 8, "x_continuous": 4, "y_continuous": 1, "spherical": 1}
+
+#: Width factors of the initial section of round shapes (one hypothesis each, see `fit_pose`).
+_ROUND_WIDTHS = (1.0, 1.15, 1.3)
 
 #: Sizes are kept in [1 mm, 20 m]: outside that range a fit has diverged, whatever the object.
 _LOG_SIZE_MIN, _LOG_SIZE_MAX = math.log(1e-3), math.log(20.0)
@@ -102,6 +106,12 @@ class FitConfig:
         step_tol: stop when the update's rotation [rad] and translation / log-size steps fall below this.
         damping: Levenberg-Marquardt damping relative to the mean diagonal of the normal matrix.
         seed: seed of the random subsample on warm starts (the fit is deterministic).
+        subsample: how the cold start picks its `n_points`: "voxel" (one random point per voxel, random
+            order) or "fps" (farthest point sampling, the paper's choice; 20-60 ms of one core for 2048).
+        articulations: try the prior's articulated variants (`priors.library.articulated_variants`, e.g. a
+            laptop's screen at other openings) on cold starts.
+        self_occlusion: prior points hidden behind the prior's own nearer surface do not pull (a coarse
+            z-buffer of the posed prior, `_not_self_occluded`).
     """
 
     n_points: int = 2048
@@ -123,6 +133,9 @@ class FitConfig:
     step_tol: float = 1e-4
     damping: float = 1e-6
     seed: int = 0
+    subsample: str = "voxel"
+    articulations: bool = True
+    self_occlusion: bool = True
 
     def __post_init__(self) -> None:
         ints = {
@@ -144,6 +157,8 @@ class FitConfig:
             raise InvalidInputError(
                 f"FitConfig.min_points must be >= 4 (a box has 9 DoF), got {self.min_points}"
             )
+        if self.subsample not in ("voxel", "fps"):
+            raise InvalidInputError(f"FitConfig.subsample must be 'voxel' or 'fps', got {self.subsample!r}")
         lo, hi = self.clip_percentiles
         if not 0.0 <= lo < hi <= 100.0:
             raise InvalidInputError(f"FitConfig.clip_percentiles needs 0 <= low < high <= 100, got {lo, hi}")
@@ -179,6 +194,9 @@ class FitResult:
         n_points: observed points the fit used.
         mode: "upright_plane" (support plane given), "upright" (up only), "free", or "warm_*" variants.
         time_s: wall time of the call [s].
+        prior: the prior whose shape won: the one passed in, or one of its articulated variants
+            (`priors.library.articulated_variants`: a laptop's screen at another opening); pass it to the
+            next warm-started call.
     """
 
     pose: Pose9D
@@ -192,6 +210,7 @@ class FitResult:
     n_points: int
     mode: str
     time_s: float
+    prior: ShapePrior | None = None
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -346,6 +365,38 @@ def _huber_cost(d: np.ndarray, delta: float) -> np.ndarray:
     return np.where(d <= delta, d * d, 2.0 * delta * d - delta * delta)
 
 
+def _not_self_occluded(x: np.ndarray, size: np.ndarray, cos_view: np.ndarray) -> np.ndarray:
+    """(M,) bool: posed prior points `x` (M, 3) not hidden behind the prior's own nearer surface.
+
+    A coarse z-buffer of the posed points: image-plane bins of about two point spacings (the spacing from
+    the box's surface area over M), and a point is hidden when the nearest point of its bin is in front of
+    it by more than its own surface's depth change across a bin (bin width x tan of its viewing angle) plus
+    5 mm. Without it a laptop seen from behind its screen lets the hidden keyboard pull onto the screen
+    and the box collapses to the screen's thickness.
+    """
+    area = 2.0 * (size[0] * size[1] + size[1] * size[2] + size[0] * size[2])
+    bin_m = 2.0 * math.sqrt(area / len(x))
+    z = x[:, 2]
+    z_ref = float(np.median(z))
+    if z_ref <= 0.0:
+        return np.ones(len(x), dtype=bool)
+    b = bin_m / z_ref
+    with np.errstate(divide="ignore", invalid="ignore"):
+        iu = np.floor(x[:, 0] / (z * b))
+        iv = np.floor(x[:, 1] / (z * b))
+    ok = np.isfinite(iu) & np.isfinite(iv) & (z > 0.0)
+    if not np.all(ok):
+        return np.ones(len(x), dtype=bool)
+    iu -= iu.min()
+    iv -= iv.min()
+    key = (iu * (iv.max() + 1.0) + iv).astype(np.int64)
+    z_min = np.full(int(key.max()) + 1, np.inf)
+    np.minimum.at(z_min, key, z)
+    c = np.clip(cos_view, 1e-3, 1.0)
+    tol = 0.005 + bin_m * np.sqrt(1.0 - c * c) / c
+    return z <= z_min[key] + tol
+
+
 def _evaluate(pb: _Problem, st: _State, want_jacobian: bool):
     """Robust objective at `st` and, if asked, its Gauss-Newton normal equations in the reduced params."""
     s = np.exp(st.log_s)
@@ -355,7 +406,10 @@ def _evaluate(pb: _Problem, st: _State, want_jacobian: bool):
     n_cam = (pb.prior_n / s) @ st.R.T
     # facing the camera: cos(normal, -x) > visible_cos, i.e. -n.x > visible_cos |n| |x|
     facing = -np.einsum("ij,ij->i", n_cam, x)
-    visible = facing > pb.config.visible_cos * np.linalg.norm(n_cam, axis=1) * np.linalg.norm(x, axis=1)
+    cos_view = facing / (np.linalg.norm(n_cam, axis=1) * np.linalg.norm(x, axis=1))
+    visible = cos_view > pb.config.visible_cos
+    if pb.config.self_occlusion:
+        visible &= _not_self_occluded(x, s, cos_view)
     delta = pb.config.huber_m
 
     # observation -> prior: every prior point may be the nearest one (see module docstring)
@@ -372,36 +426,76 @@ def _evaluate(pb: _Problem, st: _State, want_jacobian: bool):
     if not want_jacobian:
         return cost, float(np.mean(d_op**2)), float(np.mean(d_po**2)), None, None
 
-    # Residual blocks r = x_k - y_j (3 rows each), weighted by sqrt(w / n) so that sum r^2 is the objective.
+    # Residuals r = x_k - y_j, weights w / n so that sum w r^2 is the objective.
     k_all = np.concatenate([j_op, vis_idx])
     y_all = np.concatenate([pb.obs, pb.obs[j_po]])
     w_all = np.concatenate([_huber_weights(d_op, delta) / n_obs, _huber_weights(d_po, delta) / n_vis])
     r = x[k_all] - y_all  # (K, 3)
     qk = q[k_all]
-    pk = pb.prior_p[k_all]
-    K = len(k_all)
-    J = np.zeros((K, 3, 9))
-    # left perturbation R <- exp(dw) R: dx/dw = -hat(R diag(s) p)
-    J[:, 0, 1], J[:, 0, 2] = qk[:, 2], -qk[:, 1]
-    J[:, 1, 0], J[:, 1, 2] = -qk[:, 2], qk[:, 0]
-    J[:, 2, 0], J[:, 2, 1] = qk[:, 1], -qk[:, 0]
-    J[:, :, 3:6] = np.eye(3)
-    # dx/dlog s_i = R[:, i] s_i p_i (+ up s_y / 2 when the bottom face is held on the plane)
-    J[:, :, 6:9] = st.R[None, :, :] * (s * pk)[:, None, :]
-    if pb.plane is not None:
-        assert pb.up is not None
-        J[:, :, 7] += 0.5 * s[1] * pb.up
-    Jr = J.reshape(3 * K, 9) @ pb.basis
-    sw = np.repeat(np.sqrt(w_all), 3)
-    Jw = Jr * sw[:, None]
-    rw = r.reshape(-1) * sw
-    H = Jw.T @ Jw
-    g = Jw.T @ rw
+    ak = pb.prior_p[k_all] * s  # (K, 3) s * p: dx/dlog s_i = R[:, i] a_i
+    u = 0.5 * s[1] * pb.up if pb.plane is not None else None  # bottom held on the plane: + u on log s_y
+    H9, g9 = _normal_equations(qk, ak, r, w_all, st.R, u)
+    H = pb.basis.T @ H9 @ pb.basis
+    g = pb.basis.T @ g9
     # aspect prior: residuals linear in log s
     Ja = _aspect_jacobian(pb) @ pb.basis[6:9]
     H += Ja.T @ Ja
     g += Ja.T @ aspect_r
     return cost, float(np.mean(d_op**2)), float(np.mean(d_po**2)), H, g
+
+
+def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of (K, 3) arrays (np.cross spends more time on axis handling than on maths)."""
+    return np.column_stack(
+        [
+            a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
+            a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
+        ]
+    )
+
+
+def _hat(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _normal_equations(
+    q: np.ndarray, a: np.ndarray, r: np.ndarray, w: np.ndarray, R: np.ndarray, u: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Newton H = sum w J^T J (9, 9) and g = sum w J^T r (9,) from weighted moments, in closed form.
+
+    Per residual r_k = x_k - y_k with x_k = R diag(s) p_k + t and parameters (left rotation increment,
+    translation, log size), J_k = [-hat(q_k), I, R diag(a_k)] with q_k = R a_k, a_k = s * p_k, plus the
+    constant column u on log s_y when the bottom face is held on the plane. Sums of 3x3 moments replace the
+    (3K, 9) Jacobian, which costs K times more memory traffic.
+    """
+    W = float(w.sum())
+    wq = q * w[:, None]
+    wa = a * w[:, None]
+    sum_q, sum_a, sum_r = wq.sum(axis=0), wa.sum(axis=0), w @ r
+    Q = q.T @ wq  # sum w q q^T
+    P = wq.T @ a  # sum w q a^T
+    H = np.zeros((9, 9))
+    H[0:3, 0:3] = np.trace(Q) * np.eye(3) - Q  # sum w hat(q)^T hat(q)
+    H[0:3, 3:6] = _hat(sum_q)  # sum w (-hat(q))^T I
+    H[0:3, 6:9] = _cross_rows(P.T, R.T).T  # column i: (sum w a_i q) x R[:, i]
+    H[3:6, 3:6] = W * np.eye(3)
+    H[3:6, 6:9] = R * sum_a  # sum w R diag(a)
+    H[6:9, 6:9] = np.diag(np.einsum("ij,ij->j", wa, a))  # sum w diag(a)^2
+    H[3:6, 0:3] = H[0:3, 3:6].T
+    H[6:9, 0:3] = H[0:3, 6:9].T
+    H[6:9, 3:6] = H[3:6, 6:9].T
+    g = np.empty(9)
+    g[0:3] = _cross_rows(wq, r).sum(axis=0)  # sum w hat(q) r
+    g[3:6] = sum_r
+    g[6:9] = np.einsum("ij,ij->j", wa, r @ R)  # sum w a * (R^T r)
+    if u is not None:
+        v = np.concatenate([_hat(sum_q) @ u, W * u, sum_a * (R.T @ u)])  # sum w J0^T u
+        H[7, :] += v
+        H[:, 7] += v
+        H[7, 7] += W * float(u @ u)
+        g[7] += float(u @ sum_r)
+    return H, g
 
 
 _PAIRS = np.array([[0, 1], [1, 2], [0, 2]])
@@ -497,7 +591,13 @@ def _proper_axis_rotations(U: np.ndarray, symmetry: str) -> list[np.ndarray]:
 
 
 def _initial_state(
-    pts: np.ndarray, R: np.ndarray, prior: ShapePrior, up: np.ndarray | None, plane, symmetry: str
+    pts: np.ndarray,
+    R: np.ndarray,
+    prior: ShapePrior,
+    up: np.ndarray | None,
+    plane,
+    symmetry: str,
+    widen: float = 1.0,
 ) -> _State:
     """Amodal initial box for the rotation `R`: visible extents as lower bounds, prior aspect for the rest,
     grown away from the camera; bottom on the plane when one is given."""
@@ -520,6 +620,7 @@ def _initial_state(
     size = np.maximum(ext, kappa * aspect * 0.9)
     if symmetry in ("y_continuous", "spherical"):
         size[0] = size[2] = max(size[0], size[2])
+    size[[0, 2]] *= widen
     centre_local = 0.5 * (lo + hi)
     # grow the box away from the camera: the seen face stays where it is
     view = pts.mean(axis=0) @ R  # camera -> object direction in object axes (unnormalised)
@@ -624,14 +725,41 @@ def canonicalize_symmetry(pose: Pose9D, symmetry: str, up_cam: ArrayLike | None 
 
 
 def _subsample(pts: np.ndarray, n: int, how: str, seed: int) -> np.ndarray:
+    """At most n of the points, in an order whose every prefix is a coarser sample of the same surface.
+
+    "voxel": one random point per voxel of a grid sized to leave about n occupied voxels (even density over
+    the surface however the camera's sampling varies with depth and slant, like farthest point sampling at a
+    fraction of its cost), in random order. "random": a seeded random subset in random order. "fps":
+    farthest point sampling (FPS order). Fewer than n points: all of them, in random order (raster order
+    would make a prefix the top rows of the object).
+    """
+    rng = np.random.default_rng(seed)
     if len(pts) <= n:
-        return pts
+        return pts[rng.permutation(len(pts))]
     if how == "fps":
         # start at the point nearest the centroid: deterministic and inside the cloud
         start = int(np.argmin(np.sum((pts - pts.mean(axis=0)) ** 2, axis=1)))
         return pts[farthest_point_sampling(pts, n, start_index=start)]
-    idx = np.random.default_rng(seed).choice(len(pts), size=n, replace=False)
-    return pts[np.sort(idx)]
+    if how == "voxel":
+        shuffled = pts[rng.permutation(len(pts))]
+        lo = shuffled.min(axis=0)
+        span = float(np.max(shuffled.max(axis=0) - lo))
+        # a surface patch of extent L holds ~(L / v)^2 voxels: start there, then correct by the count seen
+        v = max(span / math.sqrt(n), 1e-4)
+        keep = np.arange(len(shuffled))
+        for _ in range(3):
+            keys = np.floor((shuffled - lo) / v).astype(np.int64)
+            _, first = np.unique(keys[:, 0] * 4194304 * 4194304 + keys[:, 1] * 4194304 + keys[:, 2],
+                                 return_index=True)  # fmt: skip
+            keep = first
+            ratio = len(first) / n
+            if 1.0 <= ratio <= 1.3:
+                break
+            v *= math.sqrt(ratio) if ratio > 0 else 0.5
+        keep = np.sort(keep)  # shuffled order: a random representative per voxel, in random order
+        return shuffled[keep[:n]] if len(keep) >= n else shuffled[keep]
+    idx = rng.choice(len(pts), size=n, replace=False)
+    return pts[idx]
 
 
 def fit_pose(
@@ -679,7 +807,8 @@ def fit_pose(
 
     # 1. observation: depth gate, subsample, descriptor
     z = pts_all[:, 2]
-    z_lo, z_hi = np.percentile(z, cfg.clip_percentiles)
+    # percentiles of an even stride of at most ~8k points: as good for a gate, and O(N) work stays small
+    z_lo, z_hi = np.percentile(z[:: max(1, len(z) // 8192)], cfg.clip_percentiles)
     gate = cfg.depth_gate_ratio * (z_hi - z_lo) + 0.01
     pts = pts_all[(z >= z_lo - gate) & (z <= z_hi + gate)]
     if len(pts) < cfg.min_points:
@@ -688,18 +817,39 @@ def fit_pose(
         )
     warm = init is not None
     n_obs = cfg.n_points_warm if warm else cfg.n_points
-    obs = _subsample(pts, n_obs, "random" if warm else "fps", cfg.seed)
+    obs = _subsample(pts, n_obs, "random" if warm else cfg.subsample, cfg.seed)
+    n_coarse = max((st.obs_points for st in cfg.stages[:-1]), default=0)
+    if not warm and cfg.subsample == "voxel" and 0 < n_coarse < len(obs):
+        # the coarse stages rank the hypotheses on a prefix: make it an even farthest-point cover (a random
+        # prefix is clumpy and misses thin parts such as a mug's handle); FPS of a few hundred points
+        # out of the voxel sample costs a few ms
+        start = int(np.argmin(np.sum((obs - obs.mean(axis=0)) ** 2, axis=1)))
+        head = farthest_point_sampling(obs, n_coarse, start_index=start)
+        rest = np.ones(len(obs), dtype=bool)
+        rest[head] = False
+        obs = np.concatenate([obs[head], obs[rest]])
     mode = "upright_plane" if plane is not None else ("upright" if up is not None else "free")
     if warm:
         mode = "warm_" + mode
 
-    log_aspect = np.log(prior.aspect)
     basis = _basis(up, plane, sym)
+    # Articulated families (a laptop's screen angle) bring variants of the prior; they compete as extra
+    # hypotheses at the best yaw of the mean shape (see the coarse stage below).
+    variants = articulated_variants(prior) if cfg.articulations and not warm else ()
+    shapes = (prior, *variants)
+    problems: dict[tuple[int, int, int], _Problem] = {}
 
-    def problem(n_o: int, n_p: int) -> _Problem:
-        o = obs[:n_o]  # FPS order: a prefix is a coarser farthest-point sample
-        pp, pn = _prior_subset(prior, n_p)
-        return _Problem(o, cKDTree(o), pp, pn, up, plane, basis, log_aspect, cfg)
+    def problem(k_shape: int, n_o: int, n_p: int) -> _Problem:
+        key = (k_shape, n_o, n_p)
+        pb = problems.get(key)
+        if pb is None:
+            o = obs[:n_o]  # FPS order: a prefix is a coarser farthest-point sample
+            shp = shapes[k_shape]
+            pp, pn = _prior_subset(shp, n_p)
+            tree = next((q.obs_tree for (_, m, _), q in problems.items() if m == n_o), None)
+            pb = _Problem(o, tree or cKDTree(o), pp, pn, up, plane, basis, np.log(shp.aspect), cfg)
+            problems[key] = pb
+        return pb
 
     # 2. hypotheses
     if warm:
@@ -734,34 +884,52 @@ def fit_pose(
                 Rs = [_R_from_yaw(up, e1, e2, phi + math.pi * k / n_yaw) for k in range(n_yaw)]
         else:
             Rs = _proper_axis_rotations(np.asarray(desc.axes), sym)
-        states = [_initial_state(pts, R, prior, up, plane, sym) for R in Rs]
+        # A round shape has one rotation hypothesis; its section is tried at a few widths instead, since
+        # a narrower section closer to the camera is a local minimum of the visible-arc fit.
+        widths = _ROUND_WIDTHS if sym in ("y_continuous", "spherical") and up is not None else (1.0,)
+        states = [_initial_state(pts, R, prior, up, plane, sym, w) for R in Rs for w in widths]
 
     # 3. optimise: coarse stage on all hypotheses, refinement of the best few
     total_iters = 0
+    finals: list[tuple[_State, _Problem, int]]
     if warm:
-        pb = problem(len(obs), cfg.warm_prior_points)
+        pb = problem(0, len(obs), cfg.warm_prior_points)
         st, _ = _optimise(pb, states[0], cfg.warm_iterations)
         total_iters += pb.iterations
-        finals = [(st, pb)]
+        finals = [(st, pb, 0)]
     else:
+        hyps = [(st, 0) for st in states]
         finals = []
         for k, stage in enumerate(cfg.stages):
-            pb = problem(min(stage.obs_points, len(obs)), stage.prior_points)
+            n_o = min(stage.obs_points, len(obs))
             ranked = []
-            for st in states:
+            for st, ks in hyps:
+                pb = problem(ks, n_o, stage.prior_points)
+                it0 = pb.iterations
                 st2, cost = _optimise(pb, st, stage.iterations)
-                ranked.append((cost, st2))
-            total_iters += pb.iterations
-            order = np.argsort([c for c, _ in ranked], kind="stable")
+                total_iters += pb.iterations - it0
+                ranked.append((cost, st2, ks))
+            if k == 0 and variants:
+                # the mean shape's best rotation, with each articulation's own amodal initial box
+                best_R = min(ranked, key=lambda r: r[0])[1].R
+                for kv, shp in enumerate(variants, start=1):
+                    pb = problem(kv, n_o, stage.prior_points)
+                    it0 = pb.iterations
+                    st0 = _initial_state(pts, best_R, shp, up, plane, sym)
+                    st2, cost = _optimise(pb, st0, stage.iterations)
+                    total_iters += pb.iterations - it0
+                    ranked.append((cost, st2, kv))
+            order = np.argsort([r[0] for r in ranked], kind="stable")
             last = k == len(cfg.stages) - 1
-            states = [ranked[i][1] for i in (order if last else order[: stage.keep])]
-            finals = [(st, pb) for st in states]
+            keep = stage.keep + (len(variants) if k == 0 else 0)
+            hyps = [(ranked[i][1], ranked[i][2]) for i in (order if last else order[:keep])]
+            finals = [(st, problem(ks, n_o, stage.prior_points), ks) for st, ks in hyps]
     scored = []
-    for st, pbx in finals:
+    for st, pbx, ks in finals:
         cost, op, po, _, _ = _evaluate(pbx, st, False)
-        scored.append((cost, op, po, st, pbx))
+        scored.append((cost, op, po, st, pbx, ks))
     best = min(range(len(scored)), key=lambda i: scored[i][0])
-    cost, op, po, st, pbx = scored[best]
+    cost, op, po, st, pbx, k_best = scored[best]
     pose = canonicalize_symmetry(pbx.pose(st), sym, up)
     result = FitResult(
         pose=pose,
@@ -775,6 +943,7 @@ def fit_pose(
         n_points=len(obs),
         mode=mode,
         time_s=time.perf_counter() - t0,
+        prior=shapes[k_best],
     )
     log.debug("fit %s: loss %.3g m^2, %d hypotheses, %d iterations", prior.name, result.loss,
               result.hypotheses, result.iterations)  # fmt: skip

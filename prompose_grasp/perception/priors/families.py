@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 import trimesh
@@ -42,6 +43,9 @@ class ShapeFamily:
         symmetry: one of `prior.SYMMETRIES` (for the mean shape).
         frame: one line describing the canonical frame (for the docs and error messages).
         build: () -> the mean shape as a `trimesh.Trimesh` in metres, +y up.
+        articulations: (label, build) pairs of other poses of an articulated family's parts (a laptop's
+            screen opened to other angles), same frame and conventions as `build`; empty for rigid families.
+            The fit tries them as extra hypotheses (`priors.library.articulated_variants`).
     """
 
     name: str
@@ -49,7 +53,11 @@ class ShapeFamily:
     symmetry: str
     frame: str
     build: Callable[[], trimesh.Trimesh]
+    articulations: tuple[tuple[str, Callable[[], trimesh.Trimesh]], ...] = ()
 
+
+#: Other screen openings of the laptop family [deg] (the mean shape is 110).
+_LAPTOP_OPENINGS_DEG = (97.5, 122.5, 135.0)
 
 # ------------------------------------------------------------------------------------------------------------
 # Mesh helpers
@@ -194,9 +202,9 @@ def _mug() -> trimesh.Trimesh:
     return _join([body, _bent_tube(centreline, rho)])
 
 
-def _laptop() -> trimesh.Trimesh:
+def _laptop(opening_deg: float = 110.0) -> trimesh.Trimesh:
     # 13-14" laptop opened to 110 degrees: 0.32 wide (x), base 0.22 deep (z) and 18 mm thick, screen 7 mm.
-    w, d, tb, ts, opening_deg = 0.32, 0.22, 0.018, 0.007, 110.0
+    w, d, tb, ts = 0.32, 0.22, 0.018, 0.007
     base = _cuboid([w, tb, d], [0.0, tb / 2.0, d / 2.0])  # hinge line at z = 0, keyboard towards +z
     screen = _cuboid([w, d, ts], [0.0, d / 2.0, -ts / 2.0])  # upright, standing on the hinge line
     lean = math.radians(opening_deg - 90.0)
@@ -392,6 +400,9 @@ _FAMILY_LIST = (
         "none",
         "NOCS: base normal +y, hinge line along x, keyboard towards +z, screen at -z",
         _laptop,
+        # Screens are used opened from ~90 to ~135 degrees; 110 is the mean shape, these span the rest in
+        # 12.5-degree steps (the screen top then lies within ~2.5 cm of one of them).
+        tuple((f"opening {a:g} deg", partial(_laptop, a)) for a in _LAPTOP_OPENINGS_DEG),
     ),
     ShapeFamily(
         "camera",
