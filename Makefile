@@ -1,5 +1,5 @@
 # Two commands do all the set-up on a fresh machine (see README):
-#   make demo   the main job (the language pick-and-place demo, arriving with issue 7)
+#   make demo   the main job: a MuJoCo language pick-and-place episode (video, overlays, summary.json)
 #   make test   the test suite
 # Both create .venv and install what they need on first use.
 #
@@ -24,7 +24,7 @@ PYTEST_ARGS ?=
 help:
 	@echo "make test    create .venv (first time) and run the test suite"
 	@echo "make lint    ruff + import-linter (layer contracts)"
-	@echo "make demo    the main job (not available yet: see README)"
+	@echo "make demo    the main job: a MuJoCo language pick-and-place episode into demo_out/"
 
 all: test
 
@@ -47,10 +47,11 @@ lint: venv
 	$(VENV)/bin/ruff format --check prompose_grasp sim tests examples
 	$(VENV)/bin/lint-imports
 
+DEMO_COMMAND ?= pick up the green bottle
+DEMO_OUT ?= demo_out
+
 demo: venv
-	@echo "The language pick-and-place demo arrives with issue 7 (closed-loop pipeline)."
-	@echo "What works today is listed in README.md; try:  $(VENV)/bin/prompose-grasp --help"
-	$(VENV)/bin/prompose-grasp --version
+	$(VENV)/bin/prompose-grasp demo --command "$(DEMO_COMMAND)" --out $(DEMO_OUT) --video
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .import_linter_cache

@@ -8,6 +8,7 @@ The curated public API lives here; subpackages hold the rest:
 - `prompose_grasp.perception`: ProM-Pose, `ProMPose.default().estimate(frame, "the red mug")`.
 - `prompose_grasp.grasp`: parallel-jaw and suction grasps from 9-DoF boxes and meshes, python-fcl scenes,
   IK-feasible ranking (`plan_grasps`), place planning, collision-checked pick-and-place motions.
+- `prompose_grasp.pipeline`: `PickAndPlace(...).run("put the mug in the bin") -> PickOutcome`.
 - `prompose_grasp.robot`: UR models (Pinocchio + MuJoCo from one DH table), FK/IK, trajectories, the
   `Arm` / `Gripper` / `RGBDCamera` interfaces and the shared command validator.
 """
@@ -29,6 +30,7 @@ from prompose_grasp.errors import (
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.grasp import GraspConfig, ObjectModel, Plane, plan_grasps
 from prompose_grasp.perception import Estimate, ProMPose
+from prompose_grasp.pipeline import PickAndPlace, PickConfig, PickOutcome
 from prompose_grasp.robot import (
     Arm,
     CommandValidator,
@@ -58,6 +60,9 @@ __all__ = [
     "NoFeasibleGrasp",
     "ObjectModel",
     "ObjectNotFoundError",
+    "PickAndPlace",
+    "PickConfig",
+    "PickOutcome",
     "Plane",
     "Pose9D",
     "ProMPose",
