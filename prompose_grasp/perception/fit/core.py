@@ -115,7 +115,7 @@ class FitConfig:
     """
 
     n_points: int = 2048
-    n_points_warm: int = 512
+    n_points_warm: int = 384
     n_prior_points: int = 1536
     clip_percentiles: tuple[float, float] = (5.0, 95.0)
     depth_gate_ratio: float = 0.5
@@ -128,8 +128,8 @@ class FitConfig:
         FitStage(obs_points=768, prior_points=768, iterations=8, keep=1),
         FitStage(obs_points=2048, prior_points=1536, iterations=15, keep=1),
     )
-    warm_prior_points: int = 1024
-    warm_iterations: int = 10
+    warm_prior_points: int = 512
+    warm_iterations: int = 12
     step_tol: float = 1e-4
     damping: float = 1e-6
     seed: int = 0
@@ -412,12 +412,12 @@ def _evaluate(pb: _Problem, st: _State, want_jacobian: bool):
         visible &= _not_self_occluded(x, s, cos_view)
     delta = pb.config.huber_m
 
-    # observation -> prior: every prior point may be the nearest one (see module docstring)
-    d_op, j_op = cKDTree(x).query(pb.obs, k=1)
+    # observation -> prior: every prior point may be the nearest one (see module docstring);
     # prior -> observation: visible prior points only
     vis_idx = np.flatnonzero(visible)
     if len(vis_idx) == 0:  # a degenerate pose; keep the term defined with all points
         vis_idx = np.arange(len(x))
+    d_op, j_op = cKDTree(x).query(pb.obs, k=1)
     d_po, j_po = pb.obs_tree.query(x[vis_idx], k=1)
     n_obs, n_vis = len(pb.obs), len(vis_idx)
     cost = float(_huber_cost(d_op, delta).mean() + _huber_cost(d_po, delta).mean())
