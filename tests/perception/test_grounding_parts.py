@@ -94,6 +94,27 @@ def test_synthetic_blocks_on_a_table_are_found_by_colour():
     assert len(result.candidates) == 2
 
 
+def test_inner_floor_of_a_tray_joins_its_walls():
+    """A red tray: 4 cm rim (top view: a 6-px band) around a floor 3 mm above a grey table (below the cut)."""
+    n = table_normal(40.0)
+    depth = tilted_table(n, 0.6).astype(np.float64)
+    rgb = np.full((K.height, K.width, 3), 128, np.uint8)
+    tray = np.zeros(depth.shape, bool)
+    tray[90:150, 100:180] = True
+    floor = np.zeros(depth.shape, bool)
+    floor[96:144, 106:174] = True
+    rim = tray & ~floor
+    depth[rim] = tilted_table(n, 0.6 - 0.04)[rim]
+    depth[floor] = tilted_table(n, 0.6 - 0.003)[floor]
+    rgb[tray] = (200, 30, 30)
+    result = ground(rgb, depth.astype(np.float32), K, "the red tray")
+    best = result.candidates[0]
+    # the floor is 3 mm up, below the 8 mm height cut, yet inside the rim's outline and of its colour
+    assert (best.mask & floor).sum() / floor.sum() > 0.95  # noise-free: all but the grid-step rim of cells
+    assert (best.mask & ~tray).sum() < 0.05 * tray.sum()  # the grey table around it stays out
+    assert len(result.candidates) == 1
+
+
 def test_colour_names_of_pure_and_shaded_colours():
     rgb = np.array(
         [[220, 30, 30], [230, 130, 20], [132, 117, 14], [30, 140, 40], [20, 60, 200], [120, 40, 160],

@@ -40,6 +40,10 @@ _FOOTPRINT_JOIN_M = 0.02
 #: band of pixels without depth between the two surfaces).
 _ADJACENT_CELLS = 2
 
+#: An inner floor pixel (`_inner_floor`) may read this many sigma(z) below the plane (noise), not more: a
+#: pixel far below the plane is something else seen through a gap.
+_INNER_FLOOR_SIGMAS = 3.0
+
 #: Without a support plane, segments bigger than this share of the valid pixels are background (walls, floor).
 _MAX_BACKGROUND_SHARE = 0.25
 
@@ -220,6 +224,32 @@ def _join_surfaces(
     return np.where(labels >= 0, new[np.maximum(labels, 0)], -1)
 
 
+def _inner_floor(
+    mask: np.ndarray,
+    points: np.ndarray,
+    lab: np.ndarray,
+    ref_lab: np.ndarray,
+    plane: SupportPlane,
+    config: GroundingConfig,
+) -> np.ndarray:
+    """Pixels of an object's inner floor that the height cut removed (see `_INNER_FLOOR_SIGMAS`).
+
+    Within the mask's convex outline in the image, pixels with depth that lie on or just above the plane
+    (below the height cut) and have the segment's colour (within one `colour_edge`) belong to it: the
+    inside bottom of a bowl or a mug stands only millimetres above the table.
+    """
+    ys, xs = np.nonzero(mask)
+    hull = cv2.convexHull(np.column_stack([xs, ys]).astype(np.int32))
+    inside = np.zeros(mask.shape, dtype=np.uint8)
+    cv2.fillConvexPoly(inside, hull, 1)
+    z = points[..., 2]
+    with np.errstate(invalid="ignore"):
+        h = points @ plane.normal_cam + plane.offset_m
+        low = np.isfinite(z) & (h > -_INNER_FLOOR_SIGMAS * config.sigma_m(z))
+    same = _colour_distance(lab, ref_lab) < config.colour_edge
+    return inside.view(bool) & low & same & ~mask
+
+
 def segment_objects(
     rgb: np.ndarray,
     point_map: np.ndarray,
@@ -299,6 +329,8 @@ def segment_objects(
         closed = cv2.morphologyEx(mask.view(np.uint8), cv2.MORPH_CLOSE, close_kernel).view(bool)
         grown_inv = cv2.dilate(mask.view(np.uint8), kernel).view(bool)
         mask |= (closed | grown_inv) & invalid & near & ~others
+        if plane is not None and mask.any():
+            mask |= _inner_floor(mask, roi_points, lab_roi, ref, plane, config) & ~others
         mask &= ~taken[y0:y1, x0:x1]
         if mask.sum() < config.min_segment_px:
             continue
