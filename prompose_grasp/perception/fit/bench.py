@@ -191,8 +191,9 @@ def run(
     frames_done = 0
     t_start = time.perf_counter()
     for scene, metas in _frames(data, split):
-        prev: dict[int, Pose9D] = {}
-        track: dict[int, Pose9D] = {}
+        # per instance: the last pose and the prior (or articulated variant) it was fitted with
+        prev: dict[int, tuple[Pose9D, Any]] = {}
+        track: dict[int, tuple[Pose9D, Any]] = {}
         for meta_path in metas:
             if max_frames is not None and frames_done >= max_frames:
                 break
@@ -235,15 +236,17 @@ def run(
                 preds["ours"].append((cls, res.pose))
                 iid = int(obj["id"])
                 if iid in prev:
-                    warm = fit_pose(pts, prior, cfg, support_plane_cam=plane, init=prev[iid])
+                    p_pose, p_prior = prev[iid]
+                    warm = fit_pose(pts, p_prior, cfg, support_plane_cam=plane, init=p_pose)
                     times["ours_warm"].append(warm.time_s)
                 if iid in track:
-                    tr = fit_pose(pts, prior, cfg, support_plane_cam=plane, init=track[iid])
-                    track[iid] = tr.pose
+                    t_pose, t_prior = track[iid]
+                    tr = fit_pose(pts, t_prior, cfg, support_plane_cam=plane, init=t_pose)
+                    track[iid] = (tr.pose, t_prior)
                 else:
-                    track[iid] = res.pose
-                preds["ours_warm_track"].append((cls, track[iid]))
-                prev[iid] = res.pose
+                    track[iid] = (res.pose, res.prior or prior)
+                preds["ours_warm_track"].append((cls, track[iid][0]))
+                prev[iid] = (res.pose, res.prior or prior)
                 t0 = time.perf_counter()
                 preds["obb"].append((cls, obb_baseline(pts, up)))
                 times["obb"].append(time.perf_counter() - t0)
