@@ -124,7 +124,8 @@ class FitConfig:
     visible_cos: float = 0.35
     aspect_weight: float = 0.003
     stages: tuple[FitStage, ...] = (
-        FitStage(obs_points=256, prior_points=384, iterations=8, keep=3),
+        FitStage(obs_points=256, prior_points=384, iterations=4, keep=4),
+        FitStage(obs_points=256, prior_points=384, iterations=4, keep=3),
         FitStage(obs_points=768, prior_points=768, iterations=8, keep=1),
         FitStage(obs_points=2048, prior_points=1536, iterations=15, keep=1),
     )
@@ -417,7 +418,8 @@ def _evaluate(pb: _Problem, st: _State, want_jacobian: bool):
     vis_idx = np.flatnonzero(visible)
     if len(vis_idx) == 0:  # a degenerate pose; keep the term defined with all points
         vis_idx = np.arange(len(x))
-    d_op, j_op = cKDTree(x).query(pb.obs, k=1)
+    # unbalanced, non-compact: ~15 % cheaper to build for the few hundred points of a coarse stage
+    d_op, j_op = cKDTree(x, balanced_tree=False, compact_nodes=False).query(pb.obs, k=1)
     d_po, j_po = pb.obs_tree.query(x[vis_idx], k=1)
     n_obs, n_vis = len(pb.obs), len(vis_idx)
     cost = float(_huber_cost(d_op, delta).mean() + _huber_cost(d_po, delta).mean())
