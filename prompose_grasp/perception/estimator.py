@@ -151,11 +151,16 @@ class ProMPose:
     @classmethod
     def default(cls, device: str = "cpu") -> ProMPose:
         """The embedded offline defaults: geometric grounding scored with MiniLM, the parametric prior
-        library, and the visibility-aware L_geo fit. Loads nothing from the network."""
+        library (shared by grounding and the prior), and the visibility-aware L_geo fit. Loads nothing from
+        the network; loading MiniLM and embedding the vocabularies takes a few seconds, once."""
         from prompose_grasp.perception.text import default_text_encoder
 
         encoder = default_text_encoder(device)
-        return cls(Grounder(text_encoder=encoder), PriorLibrary(encoder=encoder))
+        priors = PriorLibrary(encoder=encoder)
+        grounder = Grounder(text_encoder=encoder, priors=priors)
+        # Embed the closed description vocabularies now, so the first frame pays only for its own prompt.
+        grounder.warm_up()
+        return cls(grounder, priors)
 
     # ------------------------------------------------------------------------------------------------------
 
