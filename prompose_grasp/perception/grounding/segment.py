@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from prompose_grasp.perception.grounding.types import GroundingConfig, SupportPlane
 
@@ -213,13 +214,16 @@ def _join_surfaces(
             i = int(parent[i])
         return i
 
+    trees: dict[int, cKDTree] = {}
     for a, b in sorted(pairs):
         if not len(foot[a]) or not len(foot[b]):
             continue
         if np.linalg.norm(chroma[a] - chroma[b]) >= config.colour_edge:
             continue
-        d = np.sqrt(((foot[a][:, None, :] - foot[b][None, :, :]) ** 2).sum(-1)).min()
-        if d < _FOOTPRINT_JOIN_M:
+        if a not in trees:
+            trees[a] = cKDTree(foot[a])
+        d, _ = trees[a].query(foot[b], k=1, distance_upper_bound=_FOOTPRINT_JOIN_M)
+        if np.min(d) < _FOOTPRINT_JOIN_M:
             ra, rb = root(a), root(b)
             parent[max(ra, rb)] = min(ra, rb)
     roots = np.array([root(k) for k in range(K)])
@@ -241,8 +245,8 @@ def _inner_floor(
     (below the height cut) and have the segment's colour (within one `colour_edge`) belong to it: the
     inside bottom of a bowl or a mug stands only millimetres above the table.
     """
-    ys, xs = np.nonzero(mask)
-    hull = cv2.convexHull(np.column_stack([xs, ys]).astype(np.int32))
+    contours, _ = cv2.findContours(mask.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    hull = cv2.convexHull(np.concatenate(contours))  # the outline's points suffice (10x fewer than pixels)
     inside = np.zeros(mask.shape, dtype=np.uint8)
     cv2.fillConvexPoly(inside, hull, 1)
     z = points[..., 2]
