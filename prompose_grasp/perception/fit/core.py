@@ -6,23 +6,28 @@ one frame, over the rotation, the translation and the anisotropic size, from sev
 
 Pipeline of `fit_pose` (docs/fit.md has the reasons for each choice):
 
-1. Observation: a depth gate around the [p5, p95] depth range (mask bleed onto far background goes), farthest
-   point sampling to `n_points` (2048, paper section 4.1; a cheap random subsample on warm starts), and the
-   paper's robust descriptor (centroid, PCA axes, extents after [p5, p95] depth clipping, section 3.5).
+1. Observation: a depth gate around the [p5, p95] depth range (mask bleed onto far background goes), a voxel
+   subsample to `n_points` (2048, paper section 4.1: one random point per voxel, so density is even over the
+   surface) whose first few hundred points are reordered by farthest point sampling (the coarse stages run
+   on that prefix), a random subsample on warm starts, and the paper's robust descriptor (centroid, PCA
+   axes, extents after [p5, p95] depth clipping, section 3.5).
 2. Hypotheses: with a support-plane normal `up_cam`, the object's +y is up and only the yaw is unknown:
    yaws spaced evenly from the principal direction of the points projected on the plane (8 for asymmetric
-   shapes, 4 for two-fold ones, 1 for shapes round about y); without it, the 24 proper rotations that map
-   the object axes onto the signed, permuted PCA axes (6 when only the y axis matters). A warm start `init`
-   is the single hypothesis.
+   shapes, 4 for two-fold ones, 1 for shapes round about y, tried at three section widths); without it,
+   the 24 proper rotations that map the object axes onto the signed, permuted PCA axes (6 when only the y
+   axis matters). An articulated family (a laptop: `priors.library.articulated_variants`) adds its other
+   articulations at the best coarse yaw. A warm start `init` is the single hypothesis.
 3. Amodal initial box: extents of the points in the hypothesis frame are lower bounds (one side is seen);
    the prior's metric aspect ratios fill the unseen depth, the box grows away from the camera, and with a
    support plane the bottom face sits on the plane.
 4. Minimisation of the visibility-aware, robust L_geo: ICP-style alternation of nearest neighbours (cKDTree)
-   and a damped Gauss-Newton step on point-to-point residuals with Huber weights. Prior points whose
-   normals face away from the camera do not pull (prior -> observation term); every prior point can be the
-   nearest neighbour of an observed point (observation -> prior term). A weak prior on the log-aspect
-   ratios keeps sizes along unseen directions at the prior's proportions. All hypotheses run a short coarse
-   stage on subsampled clouds; the best few are refined on the full clouds; the lowest loss wins.
+   and a damped Gauss-Newton step on point-to-point residuals with Huber weights, the normal equations
+   summed in closed form from 3x3 moments. Prior points pull on the observation (prior -> observation
+   term) only when their normal faces the camera and a coarse z-buffer of the posed prior does not hide
+   them behind its own nearer surface; every prior point can be the nearest neighbour of an observed point
+   (observation -> prior term). A weak prior on the log-aspect ratios keeps sizes along unseen directions
+   at the prior's proportions. All hypotheses run a short coarse stage on subsampled clouds (the worse half
+   dropped halfway); the best few are refined on the full clouds; the lowest loss wins.
 5. Symmetry-aware output: for shapes round about y the yaw is canonical (object +z towards the camera),
    likewise for the other symmetry tags, so equal shapes give equal poses.
 """
@@ -83,9 +88,9 @@ class FitConfig:
     """Settings of `fit_pose`. Lengths in metres.
 
     Attributes:
-        n_points: observed points kept by farthest point sampling on a cold start (paper: 2048).
-        n_points_warm: observed points kept on a warm start (a seeded random subsample: FPS of 2048 points
-            alone costs 30-90 ms on one core, more than a tracking frame may take).
+        n_points: observed points kept on a cold start (paper: 2048), by `subsample`.
+        n_points_warm: observed points kept on a warm start (a seeded random subsample: a tracking frame
+            has ~15 ms for the whole fit).
         n_prior_points: prior points used (a farthest-point subset of the prior's 5000, cached per prior).
         clip_percentiles: depth percentiles of the paper's robust descriptor (section 3.5).
         depth_gate_ratio: points with depth outside [p5 - g, p95 + g], g = ratio * (p95 - p5) + 1 cm, are
