@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.interpolate import PchipInterpolator
 
-from prompose_grasp.errors import DeviceNotConnectedError, InvalidInputError, UnreachableError
+from prompose_grasp.errors import InvalidInputError, UnreachableError
 from prompose_grasp.geometry.se3 import make_T, so3_exp, so3_log
 from prompose_grasp.robot.interfaces import Arm, JointCommand, JointTrajectory, LinearCommand
 from prompose_grasp.robot.model import RobotModel
@@ -146,7 +146,6 @@ class SimArm(Arm):
         self.settle_speed_rad_s = float(settle_speed_rad_s)
         self.max_settle_s = float(max_settle_s)
         self._stop = threading.Event()
-        self._connected = False
         self._steps = 0
         self._wall_s = 0.0
         m = world.model
@@ -157,19 +156,8 @@ class SimArm(Arm):
 
     # ------------------------------------------------------------------ device
     def connect(self) -> None:
-        self._connected = True
+        super().connect()
         self._stop.clear()
-
-    def disconnect(self) -> None:
-        self._connected = False
-
-    @property
-    def is_connected(self) -> bool:
-        return self._connected
-
-    def _require(self) -> None:
-        if not self._connected:
-            raise DeviceNotConnectedError("SimArm is not connected; call connect() or use `with arm:`")
 
     # ------------------------------------------------------------------ state
     def joint_positions(self) -> np.ndarray:

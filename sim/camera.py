@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
-from prompose_grasp.errors import CameraError, DeviceNotConnectedError, InvalidInputError, UnknownNameError
+from prompose_grasp.errors import CameraError, InvalidInputError, UnknownNameError
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.se3 import as_transform, make_T
 from prompose_grasp.robot.interfaces import RGBDCamera, RGBDFrame
@@ -133,26 +133,14 @@ class SimCamera(RGBDCamera):
         self.world = world
         self.name = name
         self.rng = rng
-        self._connected = False
 
     @property
     def intrinsics(self) -> CameraIntrinsics:
         return self.world.intrinsics(self.name)
 
-    def connect(self) -> None:
-        self._connected = True
-
-    def disconnect(self) -> None:
-        self._connected = False
-
-    @property
-    def is_connected(self) -> bool:
-        return self._connected
-
     def capture(self) -> RGBDFrame:
         """Render the camera now (no time passes); raises `CameraError` when the renderer fails."""
-        if not self._connected:
-            raise DeviceNotConnectedError(f"SimCamera {self.name!r} is not connected; use `with camera:`")
+        self._require()
         try:
             return self.world.render(self.name, rng=self.rng)
         except Exception as exc:  # an OpenGL/EGL failure should surface as the library's camera error

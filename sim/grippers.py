@@ -40,7 +40,7 @@ import math
 import mujoco
 import numpy as np
 
-from prompose_grasp.errors import DeviceNotConnectedError, InvalidInputError
+from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry.se3 import quat_wxyz_from_R
 
 # The geometry lives in the library (one source of truth for planning and simulation); sim builds from it.
@@ -230,23 +230,6 @@ class _SimGripperBase(Gripper):
                 f"{type(self).__name__} needs a world built with a {self.kind!r} gripper; it has {have!r}"
             )
         self.world = world
-        self._connected = False
-
-    def connect(self) -> None:
-        self._connected = True
-
-    def disconnect(self) -> None:
-        self._connected = False
-
-    @property
-    def is_connected(self) -> bool:
-        return self._connected
-
-    def _require(self) -> None:
-        if not self._connected:
-            raise DeviceNotConnectedError(
-                f"{type(self).__name__} is not connected; call connect() or use `with gripper:`"
-            )
 
     def _step_until(self, done, max_time_s: float, check_every: int = 5) -> bool:
         """Step the world until `done()` is true (checked every few steps) or `max_time_s` passed."""

@@ -12,7 +12,7 @@ import logging
 import numpy as np
 from numpy.typing import ArrayLike
 
-from prompose_grasp.errors import DeviceNotConnectedError, InvalidInputError, UnreachableError
+from prompose_grasp.errors import InvalidInputError, UnreachableError
 from prompose_grasp.robot.interfaces import Arm, Gripper, JointCommand, JointTrajectory, LinearCommand
 from prompose_grasp.robot.model import RobotModel, load_robot
 from prompose_grasp.robot.validator import CommandValidator, ValidatorConfig
@@ -40,24 +40,12 @@ class FakeArm(Arm):
         if q0.shape != (6,) or not np.all(np.isfinite(q0)):
             raise InvalidInputError(f"q_initial must be a finite (6,) joint vector [rad], got {q0}")
         self._q = q0.copy()
-        self._connected = False
         self.stopped = False
         self.sent: list[JointCommand | LinearCommand | JointTrajectory] = []
 
     def connect(self) -> None:
-        self._connected = True
+        super().connect()
         self.stopped = False
-
-    def disconnect(self) -> None:
-        self._connected = False
-
-    @property
-    def is_connected(self) -> bool:
-        return self._connected
-
-    def _require(self) -> None:
-        if not self._connected:
-            raise DeviceNotConnectedError("FakeArm is not connected; call connect() or use `with arm:`")
 
     def joint_positions(self) -> np.ndarray:
         self._require()
@@ -120,23 +108,6 @@ class FakeGripper(Gripper):
         self.min_force_n, self.max_force_n = float(min_force_n), float(max_force_n)
         self._width = self.max_width_m
         self._holding = False
-        self._connected = False
-
-    def connect(self) -> None:
-        self._connected = True
-
-    def disconnect(self) -> None:
-        self._connected = False
-
-    @property
-    def is_connected(self) -> bool:
-        return self._connected
-
-    def _require(self) -> None:
-        if not self._connected:
-            raise DeviceNotConnectedError(
-                "FakeGripper is not connected; call connect() or use `with gripper:`"
-            )
 
     def open(self) -> None:
         self._require()

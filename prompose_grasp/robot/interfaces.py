@@ -14,7 +14,7 @@ from types import TracebackType
 import numpy as np
 from numpy.typing import ArrayLike
 
-from prompose_grasp.errors import InvalidInputError
+from prompose_grasp.errors import DeviceNotConnectedError, InvalidInputError
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.se3 import as_transform
 
@@ -102,20 +102,33 @@ class RGBDFrame:
             object.__setattr__(self, "T_base_cam", as_transform(self.T_base_cam, "T_base_cam"))
 
 
-class Device(abc.ABC):
-    """Something that connects: `connect()` / `disconnect()`, usable as a context manager."""
+class Device(abc.ABC):  # noqa: B024 - the base of the abstract Arm, Gripper and RGBDCamera
+    """Something that connects: `connect()` / `disconnect()`, usable as a context manager.
 
-    @abc.abstractmethod
+    The base keeps the connected flag: devices with a real connection override `connect` / `disconnect`
+    (opening sockets, stopping motion) and call `super()`; every command starts with `_require()`.
+    """
+
+    _connected: bool = False
+
     def connect(self) -> None:
         """Open the connection; raises a `PromposeError` subclass when the device cannot be reached."""
+        self._connected = True
 
-    @abc.abstractmethod
     def disconnect(self) -> None:
         """Close the connection; safe to call twice."""
+        self._connected = False
 
     @property
-    @abc.abstractmethod
-    def is_connected(self) -> bool: ...
+    def is_connected(self) -> bool:
+        return self._connected
+
+    def _require(self) -> None:
+        """Raise `DeviceNotConnectedError` unless connected (called first by every command)."""
+        if not self._connected:
+            raise DeviceNotConnectedError(
+                f"{type(self).__name__} is not connected; call connect() or use it in a `with` block"
+            )
 
     def __enter__(self):
         self.connect()
