@@ -12,11 +12,11 @@ Two grounders share one call, `.ground(rgb, depth_m, intrinsics, prompt) -> Grou
 docs/grounding.md describes the method, its thresholds and its measured speed and accuracy.
 """
 
-from prompose_grasp.perception.grounding.describe import PALETTE, SHAPE_FAMILIES, SIZE_CLASSES
+from prompose_grasp.perception.grounding.describe import HEIGHT_BINS, PALETTE, SHAPE_FAMILIES, SIZE_CLASSES
 from prompose_grasp.perception.grounding.dino_sam import GroundingDinoSam2Grounder
 from prompose_grasp.perception.grounding.grounder import Grounder, ground, validate_frame
 from prompose_grasp.perception.grounding.language import ParsedPrompt, parse_prompt
-from prompose_grasp.perception.grounding.score import ScoringWeights
+from prompose_grasp.perception.grounding.score import NounPrior, ScoringWeights
 from prompose_grasp.perception.grounding.types import (
     Candidate,
     CandidateAttributes,
@@ -27,6 +27,7 @@ from prompose_grasp.perception.grounding.types import (
 )
 
 __all__ = [
+    "HEIGHT_BINS",
     "PALETTE",
     "SHAPE_FAMILIES",
     "SIZE_CLASSES",
@@ -37,6 +38,7 @@ __all__ = [
     "GroundingDinoSam2Grounder",
     "GroundingResult",
     "GroundingTiming",
+    "NounPrior",
     "ParsedPrompt",
     "ScoringWeights",
     "SupportPlane",
