@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
-from prompose_grasp.errors import InvalidInputError
+from prompose_grasp.geometry.pointcloud import as_points
 
 __all__ = ["ChamferResult", "chamfer_distance", "nearest_neighbor_distances"]
 
@@ -28,22 +28,11 @@ class ChamferResult:
     total: float
 
 
-def _cloud(points: ArrayLike, name: str) -> np.ndarray:
-    P = np.asarray(points, dtype=np.float64)
-    if P.ndim != 2 or P.shape[1] != 3:
-        raise InvalidInputError(f"{name} must have shape (N, 3), got {P.shape}")
-    if len(P) == 0:
-        raise InvalidInputError(f"{name} is empty; the Chamfer distance needs a point on each side")
-    if not np.all(np.isfinite(P)):
-        raise InvalidInputError(f"{name} must be finite, got NaN or inf")
-    return P
-
-
 def nearest_neighbor_distances(query: ArrayLike, reference: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """For each of the (N, 3) `query` points, the Euclidean distance [m] to the nearest of the (M, 3)
     `reference` points and that point's index. Returns ((N,) float64, (N,) intp)."""
-    Q = _cloud(query, "query")
-    R = _cloud(reference, "reference")
+    Q = as_points(query, "query")
+    R = as_points(reference, "reference")
     dist, idx = cKDTree(R).query(Q, k=1)
     return np.asarray(dist, dtype=np.float64), np.asarray(idx, dtype=np.intp)
 
@@ -54,8 +43,8 @@ def chamfer_distance(A: ArrayLike, B: ArrayLike, squared: bool = True) -> Chamfe
     With `squared=True` (default, the paper's L_geo) each direction is the mean of squared nearest-neighbour
     distances [m^2]; with `squared=False` the mean Euclidean distance [m].
     """
-    P = _cloud(A, "A")
-    Q = _cloud(B, "B")
+    P = as_points(A, "A")
+    Q = as_points(B, "B")
     d_ab, _ = cKDTree(Q).query(P, k=1)
     d_ba, _ = cKDTree(P).query(Q, k=1)
     if squared:

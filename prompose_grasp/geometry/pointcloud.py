@@ -93,12 +93,14 @@ def depth_to_point_map(depth: ArrayLike, intrinsics: CameraIntrinsics) -> np.nda
     return out
 
 
-def _cloud(points: ArrayLike, name: str = "points") -> np.ndarray:
+def as_points(points: ArrayLike, name: str = "points", min_points: int = 1) -> np.ndarray:
+    """Validate a point cloud: (N, 3), finite, N >= `min_points`. Returns it as float64."""
     P = np.asarray(points, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3:
         raise InvalidInputError(f"{name} must have shape (N, 3), got {P.shape}")
-    if len(P) == 0:
-        raise InvalidInputError(f"{name} is empty; at least one point is needed")
+    if len(P) < min_points:
+        have = "is empty" if len(P) == 0 else f"has {len(P)} points"
+        raise InvalidInputError(f"{name} {have}; at least {min_points} are needed")
     if not np.all(np.isfinite(P)):
         raise InvalidInputError(f"{name} must be finite, got NaN or inf")
     return P
@@ -124,7 +126,7 @@ def farthest_point_sampling(points: ArrayLike, n: int, start_index: int = 0) -> 
     Returns:
         (min(n, N),) intp indices into `points`, unique, first = start_index (when n < N).
     """
-    P = _cloud(points)
+    P = as_points(points)
     N = len(P)
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise InvalidInputError(f"n must be a positive integer, got {n!r}")
@@ -211,7 +213,7 @@ def robust_descriptor(
         points: (N, 3) finite camera-frame points [m], N >= 1.
         low_percentile, high_percentile: clipping percentiles in [0, 100], low < high.
     """
-    P = _cloud(points)
+    P = as_points(points)
     lo_p, hi_p = float(low_percentile), float(high_percentile)
     if not (0.0 <= lo_p < hi_p <= 100.0):
         raise InvalidInputError(

@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry.boxes import box_corners, oriented_box_iou
+from prompose_grasp.geometry.pointcloud import as_points
 from prompose_grasp.geometry.se3 import as_rotation, as_transform, make_T, rotation_angle
 from prompose_grasp.geometry.tolerances import POSE_ALLCLOSE_M, POSE_ALLCLOSE_RAD, ROTATION_ATOL
 
@@ -29,15 +30,6 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     a = np.array(a, dtype=np.float64, copy=True)
     a.setflags(write=False)
     return a
-
-
-def _points(points: ArrayLike, name: str) -> np.ndarray:
-    P = np.asarray(points, dtype=np.float64)
-    if P.ndim != 2 or P.shape[1] != 3:
-        raise InvalidInputError(f"{name} must have shape (N, 3), got {P.shape}")
-    if not np.all(np.isfinite(P)):
-        raise InvalidInputError(f"{name} must be finite, got NaN or inf")
-    return P
 
 
 @dataclass(frozen=True, eq=False)
@@ -149,17 +141,17 @@ class Pose9D:
 
         This is the paper's scaled canonical prior (section 3.7). Returns (N, 3) float64 [m].
         """
-        P = _points(points_unit, "points_unit")
+        P = as_points(points_unit, "points_unit", min_points=0)
         return (P * self.size) @ self.R.T + self.t
 
     def points_to_unit(self, points_cam: ArrayLike) -> np.ndarray:
         """Inverse of `points_to_camera`: diag(1/size) R^T (p - t). (N, 3) [m] -> (N, 3) unit-box coords."""
-        P = _points(points_cam, "points_cam")
+        P = as_points(points_cam, "points_cam", min_points=0)
         return ((P - self.t) @ self.R) / self.size
 
     def points_to_object(self, points_cam: ArrayLike) -> np.ndarray:
         """(N, 3) camera-frame points [m] -> (N, 3) object-frame points [m]: R^T (p - t)."""
-        P = _points(points_cam, "points_cam")
+        P = as_points(points_cam, "points_cam", min_points=0)
         return (P - self.t) @ self.R
 
     def contains(self, points_cam: ArrayLike, margin_m: float = 0.0) -> np.ndarray:
