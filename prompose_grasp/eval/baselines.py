@@ -15,7 +15,9 @@ from prompose_grasp.perception.grounding import SupportPlane
 __all__ = ["obb_baseline"]
 
 
-def obb_baseline(points_cam: np.ndarray, support_plane: SupportPlane | None = None) -> Pose9D:
+def obb_baseline(
+    points_cam: np.ndarray, support_plane: SupportPlane | None = None, extend_to_plane: bool = True
+) -> Pose9D:
     """Oriented bounding box of the observed points, made a 9-DoF box as a careful user would.
 
     Steps: the points are depth-clipped to [p5, p95] (as the paper's descriptor does, against flying pixels);
@@ -25,7 +27,8 @@ def obb_baseline(points_cam: np.ndarray, support_plane: SupportPlane | None = No
 
     Args:
         points_cam: (N, 3) masked depth points in the camera frame [m], N >= 4.
-        support_plane: the plane the object stands on, if known.
+        support_plane: the plane the object stands on, if known (its normal picks +y).
+        extend_to_plane: extend the box's bottom down to the plane (the careful user's amodal height).
     """
     P = np.asarray(points_cam, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3 or len(P) < 4:
@@ -44,7 +47,7 @@ def obb_baseline(points_cam: np.ndarray, support_plane: SupportPlane | None = No
     x = axes[:, ix]
     R = np.column_stack([x, y, np.cross(x, y)])
     size = np.array([extents[ix], extents[iy], extents[iz]], dtype=np.float64)
-    if support_plane is not None:
+    if support_plane is not None and extend_to_plane:
         top = centre + 0.5 * size[1] * y
         top_height = float(support_plane.height_m(top))
         if top_height > 0.0:

@@ -279,7 +279,7 @@ class ProMPose:
             mask=candidate.mask,
             box_xyxy=np.asarray(candidate.box_xyxy),
             score=float(candidate.score),
-            prior=prior,
+            prior=fit.prior or prior,  # an articulated variant (laptop screen angle) when one won
             fit_loss=float(fit.loss) if math.isfinite(fit.loss) else math.inf,
             timings_ms=timings_ms,
             frame_index=frame_index,

@@ -2,7 +2,7 @@
 
 Run from the repository root on a dataset written by `python -m sim.dataset` (docs/sim.md):
 
-    python -m prompose_grasp.perception.fit.bench --data DIR [--split test] [--json out.json]
+    python -m prompose_grasp.eval.bench_fit --data DIR [--split test] [--json out.json]
 
 Per frame and per object of the split's categories, with the ground-truth instance mask (the *oracle mask*,
 named so: it isolates the fit from grounding):
@@ -42,10 +42,15 @@ from typing import Any
 
 import numpy as np
 
+from prompose_grasp.eval.baselines import obb_baseline
+from prompose_grasp.eval.synthetic import nocs_image_result
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import back_project
 from prompose_grasp.geometry.pose9d import Pose9D
+from prompose_grasp.perception.estimator import plane_vector
 from prompose_grasp.perception.fit.core import FitConfig, fit_pose
+from prompose_grasp.perception.grounding.plane import fit_support_plane
+from prompose_grasp.perception.grounding.types import GroundingConfig, SupportPlane
 
 log = logging.getLogger(__name__)
 
@@ -80,52 +85,11 @@ def _frames(data: Path, split: str) -> list[tuple[str, list[Path]]]:
 # Support plane (no ground truth)
 
 
-def support_plane(depth_m: np.ndarray, intr: CameraIntrinsics) -> np.ndarray | None:
-    """(4,) plane (n, d), n.x + d = 0, |n| = 1, n towards the camera, or None: the library's support-plane
-    fit (`perception.grounding.plane.fit_support_plane`, RANSAC) on every 4th pixel of the depth image."""
-    from prompose_grasp.perception.grounding.plane import fit_support_plane
-    from prompose_grasp.perception.grounding.types import GroundingConfig
-
+def support_plane(depth_m: np.ndarray, intr: CameraIntrinsics) -> SupportPlane | None:
+    """The library's support-plane fit (`perception.grounding.plane.fit_support_plane`, RANSAC) on every 4th
+    pixel of the depth image, or None."""
     full = back_project(depth_m[::4, ::4], _subsampled(intr, 4))
-    plane = fit_support_plane(full, GroundingConfig())
-    if plane is None:
-        return None
-    return np.array([*plane.normal_cam, plane.offset_m])
-
-
-# --------------------------------------------------------------------------------------------------------
-# Baselines
-
-
-def obb_baseline(points: np.ndarray, up: np.ndarray | None, plane: np.ndarray | None = None) -> Pose9D:
-    """Oriented bounding box of the depth-clipped points as a 9-DoF box (see the module docstring)."""
-    import trimesh
-
-    z_lo, z_hi = np.percentile(points[:, 2], [5.0, 95.0])
-    P = points[(points[:, 2] >= z_lo) & (points[:, 2] <= z_hi)]
-    to_origin, extents = trimesh.bounds.oriented_bounds(P)
-    T_cam_obb = np.linalg.inv(to_origin)
-    axes, centre = T_cam_obb[:3, :3], T_cam_obb[:3, 3]
-    ref_up = up if up is not None else np.array([0.0, -1.0, 0.0])
-    iy = int(np.argmax(np.abs(axes.T @ ref_up)))
-    y = axes[:, iy] * np.sign(axes[:, iy] @ ref_up)
-    rest = [i for i in range(3) if i != iy]
-    ix, iz = sorted(rest, key=lambda i: -extents[i])
-    x = axes[:, ix]
-    z = np.cross(x, y)
-    R = np.column_stack([x, y, z])
-    size = np.array([extents[ix], extents[iy], extents[iz]], dtype=np.float64)
-    if plane is not None:
-        n, d = plane[:3], float(plane[3])
-        top = centre + 0.5 * size[1] * y
-        h_top = float(top @ n + d)
-        if h_top > 0.0:
-            # bottom face moved down to the plane along y (y is within a few degrees of n)
-            height = h_top / max(float(y @ n), 0.5)
-            centre = top - 0.5 * height * y
-            size[1] = height
-    size = np.maximum(size, 1e-4)
-    return Pose9D(R, centre, size)
+    return fit_support_plane(full, GroundingConfig())
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -146,24 +110,6 @@ def _handle_visible(obj: dict[str, Any], points_cam: np.ndarray) -> int:
     x_max = 0.5 * float(gt.size[0])
     in_handle = local[:, 0] > x_max - 0.6 * reach
     return int(np.count_nonzero(in_handle) >= _HANDLE_MIN_PIXELS)
-
-
-def _result_dict(gts: list[tuple[int, Pose9D, int]], preds: list[tuple[int, Pose9D]]) -> dict[str, Any]:
-    def srt(p: Pose9D) -> tuple[np.ndarray, np.ndarray]:
-        return p.to_nocs_sRT()
-
-    g = [srt(p) for _, p, _ in gts]
-    q = [srt(p) for _, p in preds]
-    return {
-        "gt_class_ids": np.array([c for c, _, _ in gts], dtype=np.int64),
-        "gt_RTs": np.array([a for a, _ in g]).reshape(-1, 4, 4),
-        "gt_scales": np.array([b for _, b in g]).reshape(-1, 3),
-        "gt_handle_visibility": np.array([h for _, _, h in gts], dtype=np.int64),
-        "pred_class_ids": np.array([c for c, _ in preds], dtype=np.int64),
-        "pred_scores": np.ones(len(preds)),
-        "pred_RTs": np.array([a for a, _ in q]).reshape(-1, 4, 4),
-        "pred_scales": np.array([b for _, b in q]).reshape(-1, 3),
-    }
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -206,9 +152,10 @@ def run(
                 K[0, 0], K[1, 1], K[0, 2], K[1, 2], int(meta["width"]), int(meta["height"])
             )
             t0 = time.perf_counter()
-            plane = support_plane(depth, intr)
+            support = support_plane(depth, intr)
             times["plane"].append(time.perf_counter() - t0)
-            up = plane[:3] if plane is not None else None
+            plane = plane_vector(support)
+            up = None if support is None else support.normal_cam
             gts: list[tuple[int, Pose9D, int]] = []
             preds: dict[str, list[tuple[int, Pose9D]]] = {m: [] for m in methods}
             for obj in meta["objects"]:
@@ -248,9 +195,9 @@ def run(
                 preds["ours_warm_track"].append((cls, track[iid][0]))
                 prev[iid] = (res.pose, res.prior or prior)
                 t0 = time.perf_counter()
-                preds["obb"].append((cls, obb_baseline(pts, up)))
+                preds["obb"].append((cls, obb_baseline(pts, support, extend_to_plane=False)))
                 times["obb"].append(time.perf_counter() - t0)
-                preds["obb_plane"].append((cls, obb_baseline(pts, up, plane)))
+                preds["obb_plane"].append((cls, obb_baseline(pts, support)))
                 ysym_obj = obj["symmetry"] == "y_continuous" or (cat == "mug" and gts[-1][2] == 0)
                 rec = {
                     "scene": scene,
@@ -270,7 +217,7 @@ def run(
                     rec[f"{m}_deg"], rec[f"{m}_cm"] = nocs_pose_error(a, b, y_symmetric=ysym_obj)
                 records.append(rec)
             for m in methods:
-                per_image[m].append(_result_dict(gts, preds[m]))
+                per_image[m].append(nocs_image_result(gts, [(c, p, 1.0) for c, p in preds[m]]))
             frames_done += 1
             log.info("%s frame %d: %d objects (%.1f s)", scene, meta["frame"], len(gts),
                      time.perf_counter() - t_start)  # fmt: skip
@@ -366,9 +313,7 @@ def format_report(report: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m prompose_grasp.perception.fit.bench", description=__doc__
-    )
+    parser = argparse.ArgumentParser(prog="python -m prompose_grasp.eval.bench_fit", description=__doc__)
     parser.add_argument("--data", required=True, type=Path, help="dataset folder (with split.json)")
     parser.add_argument("--split", default="test")
     parser.add_argument("--max-frames", type=int, default=None)
