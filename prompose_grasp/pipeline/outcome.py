@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import numpy as np
 
@@ -22,16 +22,7 @@ Reason = Literal[
     "timeout",
     "camera_failed",
 ]
-REASONS: tuple[str, ...] = (
-    "success",
-    "not_found",
-    "no_feasible_grasp",
-    "ik_failed",
-    "slipped",
-    "collision",
-    "timeout",
-    "camera_failed",
-)
+REASONS: tuple[str, ...] = get_args(Reason)
 #: Stages a `ProgressEvent` can name, in the order a run goes through them.
 STAGES: tuple[str, ...] = ("parse", "observe", "estimate", "plan", "execute", "verify", "place", "done")
 
