@@ -47,6 +47,7 @@ from prompose_grasp.eval.synthetic import nocs_image_result
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import back_project
 from prompose_grasp.geometry.pose9d import Pose9D
+from prompose_grasp.perception.dataset import read_split, scene_frames
 from prompose_grasp.perception.estimator import plane_vector
 from prompose_grasp.perception.fit.core import FitConfig, fit_pose
 from prompose_grasp.perception.grounding.plane import fit_support_plane
@@ -56,29 +57,6 @@ log = logging.getLogger(__name__)
 
 _MIN_POINTS = 50  # objects with fewer masked depth points get no prediction (they stay as missed GT)
 _HANDLE_MIN_PIXELS = 20
-
-
-# --------------------------------------------------------------------------------------------------------
-# Data
-
-
-def _read_png(path: Path) -> np.ndarray:
-    import cv2
-
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise FileNotFoundError(path)
-    return img
-
-
-def _frames(data: Path, split: str) -> list[tuple[str, list[Path]]]:
-    doc = json.loads((data / "split.json").read_text())
-    out = []
-    for scene in doc[split]["scenes"]:
-        metas = sorted((data / scene).glob("*-meta.json"))
-        if metas:
-            out.append((scene, metas))
-    return out
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -123,7 +101,7 @@ def run(
     from prompose_grasp.perception.priors import PriorLibrary
 
     cfg = config or FitConfig()
-    doc = json.loads((data / "split.json").read_text())
+    doc = read_split(data)
     categories = sorted(doc[split]["categories"])
     synsets = ["BG", *categories]
     library = PriorLibrary()
@@ -136,21 +114,15 @@ def run(
     sym_by_cat: dict[str, str] = {}
     frames_done = 0
     t_start = time.perf_counter()
-    for scene, metas in _frames(data, split):
+    for scene in doc[split]["scenes"]:
         # per instance: the last pose and the prior (or articulated variant) it was fitted with
         prev: dict[int, tuple[Pose9D, Any]] = {}
         track: dict[int, tuple[Pose9D, Any]] = {}
-        for meta_path in metas:
+        for sf in scene_frames(data, scene):
             if max_frames is not None and frames_done >= max_frames:
                 break
-            meta = json.loads(meta_path.read_text())
-            stem = str(meta_path)[: -len("-meta.json")]
-            depth = _read_png(Path(stem + "-depth.png")).astype(np.float32) * float(meta["depth_scale_m"])
-            mask = _read_png(Path(stem + "-mask.png"))
-            K = np.asarray(meta["K"])
-            intr = CameraIntrinsics(
-                K[0, 0], K[1, 1], K[0, 2], K[1, 2], int(meta["width"]), int(meta["height"])
-            )
+            depth, intr = sf.frame.depth_m, sf.frame.intrinsics
+            mask = sf.ground_truth_instance_mask
             t0 = time.perf_counter()
             support = support_plane(depth, intr)
             times["plane"].append(time.perf_counter() - t0)
@@ -158,7 +130,7 @@ def run(
             up = None if support is None else support.normal_cam
             gts: list[tuple[int, Pose9D, int]] = []
             preds: dict[str, list[tuple[int, Pose9D]]] = {m: [] for m in methods}
-            for obj in meta["objects"]:
+            for obj in (o.meta for o in sf.ground_truth_objects):
                 cat = obj["category"]
                 if cat not in categories:
                     continue
@@ -201,7 +173,7 @@ def run(
                 ysym_obj = obj["symmetry"] == "y_continuous" or (cat == "mug" and gts[-1][2] == 0)
                 rec = {
                     "scene": scene,
-                    "frame": meta["frame"],
+                    "frame": sf.index,
                     "id": iid,
                     "category": cat,
                     "points": len(pts),
@@ -219,7 +191,7 @@ def run(
             for m in methods:
                 per_image[m].append(nocs_image_result(gts, [(c, p, 1.0) for c, p in preds[m]]))
             frames_done += 1
-            log.info("%s frame %d: %d objects (%.1f s)", scene, meta["frame"], len(gts),
+            log.info("%s frame %d: %d objects (%.1f s)", scene, sf.index, len(gts),
                      time.perf_counter() - t_start)  # fmt: skip
     ysym = tuple(c for c, s in sym_by_cat.items() if s == "y_continuous")
     tables: dict[str, Any] = {}
