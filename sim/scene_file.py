@@ -452,6 +452,17 @@ def build_scene(spec: SceneSpec, seed: int | None = None, settle: bool | None = 
     # Objects: explicit poses, stacks, then random placements grouped per support so they never overlap.
     groups: dict[tuple[str, str], list[tuple[str, ObjectAsset, Mapping[str, Any]]]] = {}
     drops: list[tuple[str, ObjectAsset, Mapping[str, Any]]] = []
+
+    def place(name: str, asset: ObjectAsset, o: Mapping[str, Any], T_world_obj: np.ndarray) -> None:
+        b.add_object(
+            asset,
+            name,
+            T_world_obj,
+            o.get("prompt"),
+            _appearance(o, spec.base_dir, rng),
+            bool(o.get("fixed", False)),
+        )
+
     for o in spec.objects:
         count = int(o.get("count", 1))
         stack = o.get("stack")
@@ -465,25 +476,9 @@ def build_scene(spec: SceneSpec, seed: int | None = None, settle: bool | None = 
             name = o["name"] if n == 1 else f"{o['name']}_{k}"
             asset = shared if shared is not None else _asset(o, spec.base_dir, rng)
             if "pose" in o:
-                T = parse_pose(o["pose"], "object.pose")
-                b.add_object(
-                    asset,
-                    name,
-                    T,
-                    o.get("prompt"),
-                    _appearance(o, spec.base_dir, rng),
-                    bool(o.get("fixed", False)),
-                )
+                place(name, asset, o, parse_pose(o["pose"], "object.pose"))
             elif stack is not None:
-                T = _stack_pose(asset, supports[stack["support"]], stack, k)
-                b.add_object(
-                    asset,
-                    name,
-                    T,
-                    o.get("prompt"),
-                    _appearance(o, spec.base_dir, rng),
-                    bool(o.get("fixed", False)),
-                )
+                place(name, asset, o, _stack_pose(asset, supports[stack["support"]], stack, k))
             elif o["place"].get("orientation", "upright") == "random":
                 drops.append((name, asset, o))
             else:
@@ -502,14 +497,7 @@ def build_scene(spec: SceneSpec, seed: int | None = None, settle: bool | None = 
             clearance_m=0.001,
         )
         for (name, asset, o), T in zip(items, poses):
-            b.add_object(
-                asset,
-                name,
-                T,
-                o.get("prompt"),
-                _appearance(o, spec.base_dir, rng),
-                bool(o.get("fixed", False)),
-            )
+            place(name, asset, o, T)
     # Random orientations (bin clutter): bounding spheres packed low into the container, layer by layer, so
     # objects start close to their resting place and nothing is thrown out of the bin.
     spheres: dict[str, list[tuple[np.ndarray, float]]] = {}
