@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from prompose_grasp.errors import InvalidInputError, UnreachableError
 from prompose_grasp.geometry.se3 import as_transform, rotation_angle
 from prompose_grasp.robot.interfaces import JointTrajectory
-from prompose_grasp.robot.model import RobotModel
+from prompose_grasp.robot.model import Frame, RobotModel
 
 __all__ = ["LinearTrajectory", "joint_trajectory", "linear_trajectory", "trapezoid_profile"]
 
@@ -137,7 +137,7 @@ def linear_trajectory(
     speed_m_s: float,
     accel_m_s2: float,
     dt_s: float = UR_CONTROL_PERIOD_S,
-    frame: str = "tcp",
+    frame: Frame = "tcp",
     support_plane_z_m: float | None = None,
     path_tolerance_m: float = 0.005,
     goal_tolerance_m: float = 1e-4,
