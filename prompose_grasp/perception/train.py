@@ -30,7 +30,7 @@ from rich.console import Console
 
 from prompose_grasp.errors import InvalidInputError, PromposeError
 from prompose_grasp.perception.network.checkpoint import load_checkpoint, load_state_strict, save_checkpoint
-from prompose_grasp.perception.network.config import CONFIGS, NetworkConfig, network_config
+from prompose_grasp.perception.network.config import ABLATIONS, CONFIGS, NetworkConfig, network_config
 from prompose_grasp.perception.network.data import (
     AugmentConfig,
     ObjectTrack,
@@ -149,7 +149,7 @@ def evaluate(
             batch.size_m,
             batch.symmetry,
             batch.points,
-            batch.prior_points,
+            out["prior_points"],
             valid,
             loss,
         )
@@ -263,7 +263,7 @@ def train_on_tracks(
                 batch.size_m,
                 batch.symmetry,
                 batch.points,
-                batch.prior_points,
+                outputs["prior_points"],
                 batch.frame_valid,
                 tc.loss,
             )
@@ -316,6 +316,7 @@ def train(
     progress: bool = True,
     text_encoder: Any = None,
     max_scenes: int | None = None,
+    ablation: str = "full",
 ) -> TrainResult:
     """Train the named network config on a synthetic dataset folder (see the module docstring).
 
@@ -330,12 +331,14 @@ def train(
         progress: show a progress bar.
         text_encoder: the frozen phi_T (default: the embedded MiniLM, `default_text_encoder(device)`).
         max_scenes: read only the first scenes of each split (quick runs).
+        ablation: one of `network.config.ABLATIONS` (paper Table 2); "without L_geo" is
+            `train_config.loss.lambda_geo = 0`.
     """
     from prompose_grasp.perception.text import default_text_encoder
 
     tc = train_config or TrainConfig()
     encoder = text_encoder or default_text_encoder("cpu")
-    config = network_config(network, text_dim=int(encoder.dim))
+    config = network_config(network, ablation, text_dim=int(encoder.dim))
     train_tracks = load_tracks(data_dir, "train", config, encoder, max_scenes=max_scenes)
     val_tracks = load_tracks(data_dir, "val", config, encoder, max_scenes=max_scenes)
     if epochs is not None:
@@ -367,6 +370,18 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--batch-size", type=int, default=8)
     p.add_argument("--lr", type=float, default=1e-4, help="initial learning rate (cosine to --lr-min)")
     p.add_argument("--lr-min", type=float, default=1e-5)
+    p.add_argument(
+        "--ablation",
+        default="full",
+        choices=sorted(ABLATIONS),
+        help="train a paper Table 2 ablation instead of the full network (default full)",
+    )
+    p.add_argument(
+        "--lambda-geo",
+        type=float,
+        default=LossConfig().lambda_geo,
+        help="weight of L_geo (paper: 10; 0 = the 'without L_geo' ablation)",
+    )
     p.add_argument("--device", default="cpu", help="torch device: cpu, cuda, cuda:1 (default cpu)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1, help="CPU threads for torch (default 1)")
@@ -394,6 +409,7 @@ def run(args: argparse.Namespace) -> int:
             lr_min=args.lr_min,
             val_every=args.val_every,
             seed=args.seed,
+            loss=LossConfig(lambda_geo=args.lambda_geo),
         )
         result = train(
             args.data,
@@ -405,6 +421,7 @@ def run(args: argparse.Namespace) -> int:
             resume=not args.no_resume,
             progress=not args.no_progress,
             max_scenes=args.max_scenes,
+            ablation=args.ablation,
         )
     except PromposeError as err:
         Console(stderr=True).print(f"error: {err}", markup=False, highlight=False)

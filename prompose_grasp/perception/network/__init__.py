@@ -16,7 +16,7 @@ features. Training: `prompose_grasp.perception.train`. See docs/network.md.
 """
 
 from prompose_grasp.perception.network.checkpoint import load_estimator, save_checkpoint
-from prompose_grasp.perception.network.config import CONFIGS, NetworkConfig, network_config
+from prompose_grasp.perception.network.config import ABLATIONS, CONFIGS, NetworkConfig, network_config
 from prompose_grasp.perception.network.data import (
     AugmentConfig,
     NetworkBatch,
@@ -29,6 +29,7 @@ from prompose_grasp.perception.network.losses import LossConfig, pose_loss, symm
 from prompose_grasp.perception.network.model import ProMPoseNet
 
 __all__ = [
+    "ABLATIONS",
     "CONFIGS",
     "AugmentConfig",
     "LossConfig",

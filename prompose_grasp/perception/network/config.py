@@ -12,10 +12,32 @@ from typing import Any
 
 from prompose_grasp.errors import InvalidInputError, UnknownNameError
 
-__all__ = ["CONFIGS", "VISUAL_BACKBONES", "NetworkConfig", "network_config"]
+__all__ = [
+    "ABLATIONS",
+    "CONFIGS",
+    "FUSIONS",
+    "PRIOR_SOURCES",
+    "VISUAL_BACKBONES",
+    "NetworkConfig",
+    "network_config",
+]
 
 #: Visual encoders phi_V: `small` is trained by this project; `dinov2` is the paper's frozen DINOv2 adapter.
 VISUAL_BACKBONES = ("small", "dinov2")
+#: Where the prior points come from: `generated` (the text-conditioned prior fed in, the paper's method) or
+#: `generic` (a fixed unit-cube surface for every object: the "without generative prior" ablation).
+PRIOR_SOURCES = ("generated", "generic")
+#: Cross-modal fusion: `asymmetric` (ACA, visual tokens are the only queries) or `symmetric` (every token of
+#: every modality attends to all of them: the "symmetric fusion" ablation of paper Table 2).
+FUSIONS = ("asymmetric", "symmetric")
+#: The ablations of paper Table 2 as config changes (`without L_geo` is a loss weight, see `LossConfig`).
+ABLATIONS: dict[str, dict[str, Any]] = {
+    "full": {},
+    "no_generative_prior": {"prior": "generic"},
+    "symmetric_fusion": {"fusion": "symmetric"},
+    "no_decoupling": {"decoupled": False},
+    "no_temporal": {"temporal": False},
+}
 
 
 @dataclass(frozen=True)
@@ -46,6 +68,11 @@ class NetworkConfig:
         temporal_layers: layers of the temporal transformer phi_temp.
         head_layers: cross-attention layers of the rotation-translation head over the prior tokens.
         mlp_ratio: hidden width of every feed-forward block, as a multiple of its input width.
+        prior: one of `PRIOR_SOURCES` (ablation switch; the method is `generated`).
+        fusion: one of `FUSIONS` (ablation switch; the method is `asymmetric`).
+        decoupled: metric-canonical decoupling: the ACA sees the observation normalised into the unit box
+            while g_met carries the metric scale (False: the ACA sees the metric cloud; ablation switch).
+        temporal: the temporal transformer phi_temp (False: each frame is decoded on its own; ablation).
     """
 
     latent_dim: int = 512
@@ -71,14 +98,22 @@ class NetworkConfig:
     temporal_layers: int = 4
     head_layers: int = 2
     mlp_ratio: int = 4
+    prior: str = "generated"
+    fusion: str = "asymmetric"
+    decoupled: bool = True
+    temporal: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "geometry_strides", tuple(int(s) for s in self.geometry_strides))
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name in ("visual_backbone", "dinov2_dir"):
+            if f.name in ("visual_backbone", "dinov2_dir", "prior", "fusion"):
                 if not isinstance(v, str):
                     raise InvalidInputError(f"NetworkConfig.{f.name} must be a str, got {v!r}")
+                continue
+            if f.name in ("decoupled", "temporal"):
+                if not isinstance(v, bool):
+                    raise InvalidInputError(f"NetworkConfig.{f.name} must be a bool, got {v!r}")
                 continue
             if f.name == "geometry_strides":
                 if not v or any(s < 1 for s in v):
@@ -88,6 +123,10 @@ class NetworkConfig:
                 raise InvalidInputError(f"NetworkConfig.{f.name} must be a positive int, got {v!r}")
         if self.visual_backbone not in VISUAL_BACKBONES:
             raise UnknownNameError("visual backbone", self.visual_backbone, VISUAL_BACKBONES)
+        if self.prior not in PRIOR_SOURCES:
+            raise UnknownNameError("prior source", self.prior, PRIOR_SOURCES)
+        if self.fusion not in FUSIONS:
+            raise UnknownNameError("fusion", self.fusion, FUSIONS)
         if self.latent_dim % self.num_heads:
             raise InvalidInputError(
                 f"latent_dim {self.latent_dim} must be divisible by num_heads {self.num_heads}"
@@ -163,10 +202,13 @@ CONFIGS: dict[str, NetworkConfig] = {
 }
 
 
-def network_config(name: str, **overrides: Any) -> NetworkConfig:
-    """The named variant (`paper`, `tiny`), optionally with some fields changed."""
+def network_config(name: str, ablation: str = "full", **overrides: Any) -> NetworkConfig:
+    """The named variant (`paper`, `tiny`), with one of `ABLATIONS` applied and some fields changed."""
     try:
         base = CONFIGS[name]
     except KeyError:
         raise UnknownNameError("network config", name, CONFIGS) from None
-    return base.with_(**overrides) if overrides else base
+    if ablation not in ABLATIONS:
+        raise UnknownNameError("ablation", ablation, ABLATIONS)
+    changes = {**ABLATIONS[ablation], **overrides}
+    return base.with_(**changes) if changes else base

@@ -7,6 +7,10 @@ only looked up). Proj_G is one projection shared by the observed-canonical and p
 embedding per stream (observation / prior / text) is added to the context so that attention can tell the two
 geometry streams apart (they share Proj_G). Each layer is pre-norm cross-attention + feed-forward with
 residuals (`CrossAttentionLayer`).
+
+With `config.fusion = "symmetric"` (the ablation of paper Table 2) the visual tokens join the context and
+every token attends to every other one (self-attention over all modalities); F_t is then all the tokens,
+so what the camera sees no longer anchors the fused representation.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ class AsymmetricCrossModalAttention(nn.Module):
         d = config.latent_dim
         self.proj_geometry = nn.Linear(config.geometry_dim, d)
         self.proj_text = nn.Linear(config.text_dim, d)
+        self.symmetric = config.fusion == "symmetric"
         self.type_embed = nn.Parameter(torch.zeros(3, d))
         nn.init.normal_(self.type_embed, std=0.02)
         self.layers = nn.ModuleList(
@@ -51,6 +56,7 @@ class AsymmetricCrossModalAttention(nn.Module):
             text_valid: (B, L) bool, False for padding tokens.
         Returns:
             `fused` (B, Nv, d) F_t; `attention` (B, Nv, Mo + Mp + L) the last layer's weights (head mean).
+            Symmetric fusion: `fused` (B, Nv + Mo + Mp + L, d) and `attention` over all those tokens.
         """
         obs = self.proj_geometry(observed_canonical) + self.type_embed[0]
         prior = self.proj_geometry(prior_canonical) + self.type_embed[1]
@@ -60,8 +66,14 @@ class AsymmetricCrossModalAttention(nn.Module):
             context.shape[0], obs.shape[1] + prior.shape[1], dtype=torch.bool, device=visual.device
         )
         valid = torch.cat([geo_valid, text_valid], dim=1)
-        x = visual
         weights = visual.new_zeros(0)
+        if self.symmetric:
+            x = torch.cat([visual, context], dim=1)
+            all_valid = torch.cat([torch.ones_like(valid[:, :1]).expand(-1, visual.shape[1]), valid], dim=1)
+            for layer in self.layers:
+                x, weights = layer(x, x, all_valid)
+            return {"fused": x, "attention": weights}
+        x = visual
         for layer in self.layers:
             x, weights = layer(x, context, valid)
         return {"fused": x, "attention": weights}

@@ -12,6 +12,9 @@ phi_G is a single `GeometryEncoder` used for all three point streams (weight sha
 Outputs are metric: t = c_t + |e_t| * offset and size = |e_t| * exp(log offset), with c_t and e_t the
 descriptor's centroid and extents (so the regression is relative to the observation and does not depend on
 the object's distance or size); R from the 6-D output by Gram-Schmidt.
+
+The ablation switches of `NetworkConfig` (`prior`, `fusion`, `decoupled`, `temporal`; `config.ABLATIONS`)
+change the modules in place so that paper Table 2 can be reproduced with the same code.
 """
 
 from __future__ import annotations
@@ -39,6 +42,17 @@ _MIN_REFERENCE_M = 1e-3
 _MIN_EXTENT_M = 1e-4
 #: Log-size offsets are clamped to +-this before exp so a diverging head cannot overflow.
 _MAX_LOG_SIZE = 5.0
+
+
+def generic_prior_points(n: int, seed: int = 0) -> Tensor:
+    """(n, 3) points uniformly on the surface of the unit cube [-0.5, 0.5]^3: the category-agnostic prior of
+    the "without generative prior" ablation (deterministic for a seed)."""
+    g = torch.Generator().manual_seed(seed)
+    p = torch.rand(n, 3, generator=g) - 0.5
+    face_axis = torch.randint(0, 3, (n,), generator=g)
+    face_sign = torch.randint(0, 2, (n,), generator=g).to(p.dtype) - 0.5
+    p[torch.arange(n), face_axis] = face_sign
+    return p
 
 
 def canonicalize_points(points: Tensor) -> Tensor:
@@ -83,6 +97,8 @@ class ProMPoseNet(nn.Module):
         self.temporal = TemporalTransformer(config)
         self.rotation_translation_head = RotationTranslationHead(config)
         self.scale_head = ScaleHead(config)
+        # Not stored in checkpoints: rebuilt from the config (only used by the `generic` prior ablation).
+        self.register_buffer("generic_prior", generic_prior_points(config.prior_points), persistent=False)
 
     def forward(
         self,
@@ -105,7 +121,8 @@ class ProMPoseNet(nn.Module):
             frame_valid: (B, n) bool, False for padded / empty frames (default: all valid).
         Returns:
             `R` (B, n, 3, 3) R_cam_obj, `t` (B, n, 3) [m], `size` (B, n, 3) [m], `rot6d` (B, n, 6),
-            `tokens` (B, n, 3, d) Z_t, `features` (B, n, 3, d) H, `aca_attention` (B*n, Nv, K).
+            `tokens` (B, n, 3, d) Z_t, `features` (B, n, 3, d) H, `aca_attention` (B*n, Nv, K),
+            `prior_points` (B, Np, 3) the prior the network used (the input, or the generic cube).
         """
         B, n = points.shape[:2]
         if crops.shape[:2] != (B, n) or descriptors.shape != (B, n, DESCRIPTOR_DIM):
@@ -116,11 +133,17 @@ class ProMPoseNet(nn.Module):
             )
         if frame_valid is None:
             frame_valid = torch.ones(B, n, dtype=torch.bool, device=points.device)
+        if self.config.prior == "generic":
+            prior_points = self.generic_prior.to(points.dtype).expand(B, -1, -1)
         flat_points = points.reshape(B * n, *points.shape[2:])
-        # One encoder, two streams in one call: the metric cloud and its canonicalised copy.
-        both = self.geometry(torch.cat([flat_points, canonicalize_points(flat_points)], dim=0))
-        metric_global = both["global"][: B * n]
-        observed_canonical = both["tokens"][B * n :]
+        if self.config.decoupled:
+            # One encoder, two streams in one call: the metric cloud and its canonicalised copy.
+            both = self.geometry(torch.cat([flat_points, canonicalize_points(flat_points)], dim=0))
+            metric_global = both["global"][: B * n]
+            observed_canonical = both["tokens"][B * n :]
+        else:  # ablation: the ACA sees the metric cloud's tokens
+            metric = self.geometry(flat_points)
+            metric_global, observed_canonical = metric["global"], metric["tokens"]
         prior = self.geometry(prior_points)["tokens"]  # (B, Mp, C), once per window
         prior_per_frame = prior.repeat_interleave(n, dim=0)
 
@@ -145,4 +168,5 @@ class ProMPoseNet(nn.Module):
             "tokens": tokens,
             "features": h,
             "aca_attention": fusion["attention"],
+            "prior_points": prior_points,
         }

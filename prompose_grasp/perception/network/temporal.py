@@ -5,6 +5,9 @@ concatenated vector) so that the decoupled heads can read the refined rotation, 
 separately. Learnable positional encodings P_1..n (one per frame slot) and a learnable type embedding per
 component are added; a pre-norm transformer encoder attends over all 3n tokens of the window. Frames marked
 invalid (padding at a sequence start, frames with no points) are masked out as keys.
+
+With `config.temporal = False` (the "without temporal module" ablation) the same encoder runs on each frame's
+three tokens alone: the capacity stays, only the attention across frames (and the frame positions) go.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ class TemporalTransformer(nn.Module):
         super().__init__()
         d = config.latent_dim
         self.window = config.window
+        self.across_frames = config.temporal
         self.positions = nn.Parameter(torch.zeros(config.window, d))
         self.types = nn.Parameter(torch.zeros(3, d))
         nn.init.normal_(self.positions, std=0.02)
@@ -47,6 +51,9 @@ class TemporalTransformer(nn.Module):
             raise InvalidInputError(
                 f"pose tokens must be (B, n <= {self.window}, 3, d), got {tuple(tokens.shape)}"
             )
+        if not self.across_frames:
+            h = self.encoder((tokens + self.types[None, :, :]).reshape(B * n, 3, d))
+            return {"features": self.norm(h).reshape(B, n, 3, d)}
         x = tokens + self.positions[:n, None, :] + self.types[None, :, :]
         pad = (~frame_valid).repeat_interleave(3, dim=1)  # (B, 3n), True = ignore
         h = self.encoder(x.reshape(B, 3 * n, d), src_key_padding_mask=pad)
