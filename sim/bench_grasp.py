@@ -104,7 +104,7 @@ def _observed_points(world, T_base_world: np.ndarray, seed: int) -> np.ndarray:
 def run_scene(name: str, repeat: int, seed: int) -> dict:
     from sim.scene_file import load_world
 
-    path = Path(__file__).resolve().parents[2] / "sim" / "scenes" / f"{name}.yaml"
+    path = Path(__file__).resolve().parent / "scenes" / f"{name}.yaml"
     world = load_world(path, seed=seed)
     kind = world.robot.gripper
     gripper = get_gripper(kind)
