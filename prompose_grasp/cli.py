@@ -25,6 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_track(sub)
     _add_eval_nocs(sub)
     _add_bench(sub)
+    _add_run(sub)
     # `train` parses its own arguments (prompose_grasp.perception.train) so that torch loads only when used.
     sub.add_parser("train", help="train the ProM-Pose network on a synthetic dataset (see: train --help)")
     return parser
@@ -86,6 +87,65 @@ def _run_demo(args: argparse.Namespace) -> int:
     if args.video:
         cmd.append("--video")
     return subprocess.call(cmd)
+
+
+def _add_run(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "run",
+        help="a language command on a real UR arm, gripper and camera (or its dry run)",
+        description="Observe with the camera, estimate, plan and execute the command on a UR arm over RTDE "
+        "with a Robotiq or suction gripper; every move passes the command validator first. --dry-run plans "
+        "everything the same way and prints the moves without sending any (start with it). "
+        "Set-up, calibration and safety: docs/hardware.md.",
+    )
+    p.add_argument("--robot", default="ur5e", help="UR model: ur3e, ur5e, ur10e, ur16e, ur5 (default ur5e)")
+    p.add_argument(
+        "--host",
+        default=None,
+        help="the controller's IP address (required unless --dry-run; with --dry-run the start joints are "
+        "read from it over a receive-only link)",
+    )
+    p.add_argument("--gripper", required=True, choices=("robotiq", "suction"), help="robotiq | suction")
+    p.add_argument(
+        "--camera",
+        required=True,
+        help="realsense | kinect | a folder of NNNNNN-color.png / NNNNNN-depth.png with intrinsics.json",
+    )
+    p.add_argument("--command", dest="text", required=True, help='what to do, e.g. "pick up the red mug"')
+    p.add_argument(
+        "--calibration", required=True, help="hand-eye file (YAML/JSON) with T_base_cam or T_flange_cam [m]"
+    )
+    p.add_argument("--dry-run", action="store_true", help="plan and print the moves; send nothing")
+    p.add_argument("--json", dest="json_out", default=None, help="also write the outcome and moves here")
+    p.set_defaults(func=_run_run)
+
+
+def _run_run(args: argparse.Namespace) -> int:
+    import json
+
+    from prompose_grasp.hardware.run import CellSpec, run_command
+    from prompose_grasp.robot.interfaces import LinearCommand
+
+    spec = CellSpec(args.robot, args.host, args.gripper, args.camera, args.calibration, args.dry_run)
+    result = run_command(spec, args.text)
+    outcome = result.outcome
+    print("dry run: moves planned, none sent" if result.dry_run else "moves sent")
+    for k, line in enumerate(result.moves, 1):
+        print(f"  {k:2d}. {line}")
+    print(f"outcome: {outcome.reason}: {outcome.message}")
+    if args.json_out:
+        doc = {
+            "dry_run": result.dry_run,
+            "outcome": outcome.to_dict(),
+            "moves": list(result.moves),
+            "grasp_T_base_tcp": None if outcome.grasp is None else outcome.grasp.T_base_tcp.tolist(),
+            "linear_moves_tcp_xyz_m": [
+                c.T_base_tcp[:3, 3].tolist() for c in result.arm_commands if isinstance(c, LinearCommand)
+            ],
+        }
+        with open(args.json_out, "w") as f:
+            json.dump(doc, f, indent=2)
+    return 0 if outcome.success else 1
 
 
 def _add_frame_args(p: argparse.ArgumentParser) -> None:

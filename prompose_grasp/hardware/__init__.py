@@ -1,0 +1,65 @@
+"""Hardware adapters behind the robot-layer interfaces: a UR arm over RTDE, Robotiq and IO-suction grippers,
+RealSense / Azure Kinect / recorded-sequence cameras, hand-eye calibration files, and `run_command` (the
+`prompose-grasp run` command). Set-up, frames and safety: docs/hardware.md.
+
+Only this package imports the hardware SDKs (ur_rtde, pyrealsense2, pyk4a), and only when a device
+connects: `import prompose_grasp.hardware` works without any of them, and a missing one raises
+`MissingDependencyError` naming the extra to install.
+"""
+
+from prompose_grasp.hardware.calibration import HandEyeCalibration, load_calibration
+from prompose_grasp.hardware.cameras import (
+    AzureKinectCamera,
+    CalibratedCamera,
+    RealSenseCamera,
+    RecordedSequenceCamera,
+    frame_from_kinect,
+    frame_from_realsense,
+    intrinsics_from_realsense,
+    write_intrinsics,
+)
+from prompose_grasp.hardware.errors import (
+    CalibrationError,
+    ConnectionLostError,
+    EmergencyStopError,
+    GripperError,
+    ProtectiveStopError,
+    SafetyStopError,
+)
+from prompose_grasp.hardware.robotiq import ROBOTIQ_PORT, RobotiqConfig, RobotiqGripper
+from prompose_grasp.hardware.run import CellSpec, DryRunGripper, RunResult, run_command
+from prompose_grasp.hardware.suction import IOSuctionGripper, SuctionIOConfig
+from prompose_grasp.hardware.ur_rtde import RECEIVE_VARIABLES, RTDE_PORT, URRtdeArm, URRtdeConfig, URRtdeLinks
+
+__all__ = [
+    "RECEIVE_VARIABLES",
+    "ROBOTIQ_PORT",
+    "RTDE_PORT",
+    "AzureKinectCamera",
+    "CalibratedCamera",
+    "CalibrationError",
+    "CellSpec",
+    "ConnectionLostError",
+    "DryRunGripper",
+    "EmergencyStopError",
+    "GripperError",
+    "HandEyeCalibration",
+    "IOSuctionGripper",
+    "ProtectiveStopError",
+    "RealSenseCamera",
+    "RecordedSequenceCamera",
+    "RobotiqConfig",
+    "RobotiqGripper",
+    "RunResult",
+    "SafetyStopError",
+    "SuctionIOConfig",
+    "URRtdeArm",
+    "URRtdeConfig",
+    "URRtdeLinks",
+    "frame_from_kinect",
+    "frame_from_realsense",
+    "intrinsics_from_realsense",
+    "load_calibration",
+    "run_command",
+    "write_intrinsics",
+]

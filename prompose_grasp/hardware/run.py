@@ -1,0 +1,332 @@
+"""One language command on a real cell (UR arm + gripper + calibrated camera), or its dry run.
+
+```
+spec = CellSpec(robot="ur5e", host="192.168.1.10", gripper="robotiq", camera="realsense",
+                calibration="cell/hand_eye.yaml", dry_run=True)
+result = run_command(spec, "pick up the red mug")
+print("\n".join(result.moves))           # what was sent (dry run: what would have been sent)
+```
+
+A dry run builds the same `PickAndPlace` with the same robot model, gripper geometry, validator and camera,
+but drives a `FakeArm` (validated, instant, starting where the real arm stands when `host` is given, read
+over a receive-only RTDE link, else at `HOME_Q`) and a gripper that assumes every close holds. Nothing is
+sent to the arm or the gripper. The scene never changes under a dry run, so the re-observation after the lift
+is off.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from prompose_grasp.errors import InvalidInputError, UnknownNameError
+from prompose_grasp.grasp import get_gripper
+from prompose_grasp.hardware.calibration import load_calibration
+from prompose_grasp.hardware.cameras import (
+    AzureKinectCamera,
+    CalibratedCamera,
+    RealSenseCamera,
+    RecordedSequenceCamera,
+)
+from prompose_grasp.hardware.robotiq import RobotiqGripper
+from prompose_grasp.hardware.suction import IOSuctionGripper
+from prompose_grasp.hardware.ur_rtde import URRtdeArm, URRtdeConfig, URRtdeLinks
+from prompose_grasp.pipeline.outcome import PickOutcome, ProgressEvent
+from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
+from prompose_grasp.robot.fake import HOME_Q, FakeArm
+from prompose_grasp.robot.interfaces import (
+    Arm,
+    Gripper,
+    JointCommand,
+    JointTrajectory,
+    LinearCommand,
+    RGBDCamera,
+)
+from prompose_grasp.robot.model import RobotModel, load_robot
+
+__all__ = [
+    "GRIPPERS",
+    "CellSpec",
+    "DryRunGripper",
+    "RecordingArm",
+    "RecordingGripper",
+    "RunResult",
+    "build_camera",
+    "run_command",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Gripper names of the command line -> the planner's gripper kind.
+GRIPPERS = {"robotiq": "parallel_jaw", "suction": "suction"}
+
+#: Camera names of the command line (anything else is a recorded-sequence folder).
+CAMERAS = ("realsense", "kinect")
+
+
+@dataclass(frozen=True)
+class CellSpec:
+    """What is attached.
+
+    Attributes:
+        robot: UR model name ("ur5e", ...).
+        host: the controller's address (required unless `dry_run`).
+        gripper: "robotiq" or "suction".
+        camera: "realsense", "kinect", or a folder of recorded NNNNNN-color/depth.png frames.
+        calibration: hand-eye file (T_base_cam or T_flange_cam; see `hardware.calibration`).
+        dry_run: plan and print every move, send none.
+    """
+
+    robot: str
+    host: str | None
+    gripper: str
+    camera: str
+    calibration: str | Path
+    dry_run: bool = False
+
+    def __post_init__(self) -> None:
+        if self.gripper not in GRIPPERS:
+            raise UnknownNameError("gripper", self.gripper, GRIPPERS)
+        if not self.dry_run and not self.host:
+            raise InvalidInputError("--host is required to drive the arm (or use --dry-run)")
+        if self.camera not in CAMERAS and not Path(self.camera).is_dir():
+            raise UnknownNameError("camera (or a folder of recorded frames)", self.camera, CAMERAS)
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """The pipeline's outcome and what went to the devices, in order (dry run: what would have gone).
+
+    Attributes:
+        outcome: the pipeline's `PickOutcome`.
+        moves: one line per arm command and gripper action, in order.
+        arm_commands: the validated arm commands themselves (`JointCommand`, `LinearCommand`,
+            `JointTrajectory`), in order.
+        dry_run: nothing was sent.
+    """
+
+    outcome: PickOutcome
+    moves: tuple[str, ...]
+    arm_commands: tuple[Any, ...]
+    dry_run: bool
+
+
+def _fmt(v: ArrayLike, digits: int = 4) -> str:
+    return "[" + ", ".join(f"{x:.{digits}f}" for x in np.asarray(v, dtype=np.float64).ravel()) + "]"
+
+
+def describe(command: JointCommand | LinearCommand | JointTrajectory) -> str:
+    """One line for a validated command (SI units)."""
+    if isinstance(command, JointCommand):
+        return (
+            f"moveJ  q = {_fmt(command.q)} rad, speed {command.speed_rad_s:.3f} rad/s, "
+            f"accel {command.accel_rad_s2:.3f} rad/s^2"
+        )
+    if isinstance(command, LinearCommand):
+        from prompose_grasp.geometry.se3 import pose_vector_from_T
+
+        p = pose_vector_from_T(command.T_base_tcp)
+        return (
+            f"moveL  tcp xyz = {_fmt(p[:3])} m, rotvec = {_fmt(p[3:])} rad, "
+            f"speed {command.speed_m_s:.3f} m/s, accel {command.accel_m_s2:.3f} m/s^2"
+        )
+    return (
+        f"servoJ {len(command)} waypoints over {command.duration_s:.2f} s, "
+        f"ending at q = {_fmt(command.q[-1])} rad"
+    )
+
+
+class RecordingArm(Arm):
+    """Delegates to `arm`; appends one line per command that went through to `log`, the command to `sent`."""
+
+    def __init__(self, arm: Arm, log: list[str]):
+        self.arm = arm
+        self.log = log
+        self.sent: list[JointCommand | LinearCommand | JointTrajectory] = []
+
+    def _record(self, command):
+        self.sent.append(command)
+        self.log.append(describe(command))
+        return command
+
+    def connect(self) -> None:
+        self.arm.connect()
+        super().connect()
+
+    def disconnect(self) -> None:
+        self.arm.disconnect()
+        super().disconnect()
+
+    def joint_positions(self) -> np.ndarray:
+        return self.arm.joint_positions()
+
+    def tcp_pose(self) -> np.ndarray:
+        return self.arm.tcp_pose()
+
+    def move_joints(self, q: ArrayLike, speed: float, accel: float) -> JointCommand:
+        return self._record(self.arm.move_joints(q, speed, accel))
+
+    def move_linear(self, T_base_tcp: ArrayLike, speed: float, accel: float) -> LinearCommand:
+        return self._record(self.arm.move_linear(T_base_tcp, speed, accel))
+
+    def follow(self, trajectory: JointTrajectory) -> JointTrajectory:
+        return self._record(self.arm.follow(trajectory))
+
+    def stop(self) -> None:
+        self.arm.stop()
+        self.log.append("stop")
+
+
+class RecordingGripper(Gripper):
+    """Delegates to `gripper` and appends one line per open / close to `log`."""
+
+    def __init__(self, gripper: Gripper, log: list[str]):
+        self.gripper = gripper
+        self.log = log
+
+    def connect(self) -> None:
+        self.gripper.connect()
+        super().connect()
+
+    def disconnect(self) -> None:
+        self.gripper.disconnect()
+        super().disconnect()
+
+    def open(self) -> None:
+        self.gripper.open()
+        self.log.append("gripper open")
+
+    def close(self, force: float) -> bool:
+        held = self.gripper.close(force)
+        self.log.append(f"gripper close, force {force:.1f} N -> {'holding' if held else 'nothing held'}")
+        return held
+
+    def grasp_detected(self) -> bool:
+        return self.gripper.grasp_detected()
+
+    def width(self) -> float:
+        return self.gripper.width()
+
+
+class DryRunGripper(Gripper):
+    """A gripper for dry runs: nothing is sent, and every close is assumed to hold the object.
+
+    `width()` after a close reports `held_width_m` (jaws stopped on something of that width; 0 for suction).
+    """
+
+    def __init__(self, kind: str, max_width_m: float, held_width_m: float):
+        self.kind = kind
+        self.max_width_m = float(max_width_m)
+        self.held_width_m = float(held_width_m)
+        self._holding = False
+
+    def open(self) -> None:
+        self._require()
+        self._holding = False
+
+    def close(self, force: float) -> bool:
+        self._require()
+        if not (np.isfinite(force) and force > 0):
+            raise InvalidInputError(f"grip force must be finite and > 0 [N], got {force!r}")
+        self._holding = True
+        return True
+
+    def grasp_detected(self) -> bool:
+        self._require()
+        return self._holding
+
+    def width(self) -> float:
+        self._require()
+        if self.kind == "suction":
+            return 0.0
+        return self.held_width_m if self._holding else self.max_width_m
+
+
+def build_camera(name: str) -> RGBDCamera:
+    """ "realsense", "kinect", or a recorded-sequence folder."""
+    if name == "realsense":
+        return RealSenseCamera()
+    if name == "kinect":
+        return AzureKinectCamera()
+    if Path(name).is_dir():
+        return RecordedSequenceCamera(name)
+    raise UnknownNameError("camera (or a folder of recorded frames)", name, CAMERAS)
+
+
+def _current_q(host: str, links: Any = None) -> np.ndarray:
+    """The arm's joints over a receive-only link (a dry run sends nothing, so no control link)."""
+    from prompose_grasp.errors import DeviceNotConnectedError
+
+    links = links or URRtdeLinks()
+    try:
+        receive = links.receive(host)
+    except RuntimeError as exc:
+        raise DeviceNotConnectedError(f"could not read the arm at {host} (RTDE port 30004): {exc}") from exc
+    try:
+        return np.asarray(receive.getActualQ(), dtype=np.float64)
+    finally:
+        receive.disconnect()
+
+
+def run_command(
+    spec: CellSpec,
+    command: str,
+    estimator: Any = None,
+    config: PickConfig | None = None,
+    on_event: Callable[[ProgressEvent], None] | None = None,
+    q_start: ArrayLike | None = None,
+    robot_model: RobotModel | None = None,
+) -> RunResult:
+    """Run `command` on the cell of `spec` (or dry-run it); returns the outcome and the moves in order.
+
+    Args:
+        estimator: default `ProMPose.default()`.
+        config: `PickConfig` (a dry run turns `reobserve` off).
+        q_start: dry run only: start here instead of reading the arm (or `HOME_Q` without a host).
+        robot_model: override the model built from `spec.robot` and the gripper's TCP.
+    """
+    from prompose_grasp.perception.estimator import ProMPose
+
+    calibration = load_calibration(spec.calibration)
+    kind = GRIPPERS[spec.gripper]
+    geometry = get_gripper(kind)
+    robot = robot_model or load_robot(spec.robot, tcp_offset=geometry.T_flange_tcp)
+    log: list[str] = []
+    config = config or PickConfig()
+    if spec.dry_run:
+        config = replace(config, reobserve=False)
+        if q_start is None:
+            q_start = _current_q(spec.host) if spec.host else HOME_Q
+        inner_arm: Arm = FakeArm(robot, q_initial=q_start)
+        max_w = float(getattr(geometry, "stroke_m", 0.0))
+        inner_gripper: Gripper = DryRunGripper(kind, max_w, held_width_m=0.5 * max_w)
+    else:
+        assert spec.host is not None
+        ur = URRtdeArm(spec.host, robot, config=URRtdeConfig(use_io=kind == "suction"))
+        inner_arm = ur
+        inner_gripper = RobotiqGripper(spec.host) if kind == "parallel_jaw" else IOSuctionGripper(ur)
+    arm = RecordingArm(inner_arm, log)
+    gripper = RecordingGripper(inner_gripper, log)
+    camera = CalibratedCamera(
+        build_camera(spec.camera), calibration, T_base_flange=lambda: robot.fk(inner_arm.joint_positions())
+    )
+    estimator = estimator or ProMPose.default()
+    logger.info(
+        "%s %r on %s with %s, camera %s (%s)",
+        "dry run of" if spec.dry_run else "running",
+        command,
+        robot.name,
+        spec.gripper,
+        spec.camera,
+        calibration.key,
+    )
+    with arm, gripper, camera:
+        pnp = PickAndPlace(arm, gripper, camera, estimator, robot, kind, config=config, on_event=on_event)
+        outcome = pnp.run(command)
+    return RunResult(outcome, tuple(log), tuple(arm.sent), spec.dry_run)

@@ -1,0 +1,513 @@
+"""`URRtdeArm`: a Universal Robots arm over RTDE (the `ur_rtde` library), behind the `Arm` interface.
+
+```
+with URRtdeArm("192.168.1.10", load_robot("ur5e", tcp_offset=[0, 0, 0.145])) as arm:
+    arm.move_joints(q, speed=0.5, accel=1.0)          # validated first, then moveJ
+```
+
+Every motion command goes through the shared `CommandValidator` (limits, step, speed, workspace) before a
+byte leaves: a refused command raises `UnsafeCommandError` and nothing is sent. Moves are sent asynchronously
+and watched until they finish, so that
+
+- a protective or emergency stop during a move raises `ProtectiveStopError` / `EmergencyStopError`;
+- a dropped link (control or receive) takes the stop path (`stopJ`/`stopL`, or `servoStop` while servoing,
+  where the control link still answers), marks the arm disconnected and raises `ConnectionLostError`;
+- `stop()` from another thread ends the move (the blocked call then returns normally).
+
+`disconnect()` stops any motion and ends the controller script (`stopScript`).
+
+The three ur_rtde interfaces are opened through an `RtdeLinks` factory, the boundary the tests replace
+(`URRtdeLinks` opens the real ones). The arm calls only the methods listed in `RtdeControlLink`,
+`RtdeReceiveLink` and `RtdeIOLink`. ur_rtde facts this relies on: the constructors raise
+`RuntimeError("... Could not connect to: HOST at 30004 ...")` at once when nothing listens; e-Series arms
+accept the control script only in Remote Control mode; `RTDEReceiveInterface` keeps answering the last state
+after its link drops, so the arm checks `isConnected()` rather than trusting the values.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from prompose_grasp._optional import require
+from prompose_grasp.errors import DeviceNotConnectedError, InvalidInputError, UnreachableError
+from prompose_grasp.geometry.se3 import T_from_pose_vector, pose_vector_from_T
+from prompose_grasp.hardware.errors import ConnectionLostError, EmergencyStopError, ProtectiveStopError
+from prompose_grasp.robot.interfaces import Arm, JointCommand, JointTrajectory, LinearCommand
+from prompose_grasp.robot.model import RobotModel, load_robot
+from prompose_grasp.robot.validator import CommandValidator, ValidatorConfig
+
+__all__ = [
+    "RECEIVE_VARIABLES",
+    "RTDE_PORT",
+    "RtdeControlLink",
+    "RtdeIOLink",
+    "RtdeLinks",
+    "RtdeReceiveLink",
+    "URRtdeArm",
+    "URRtdeConfig",
+    "URRtdeLinks",
+]
+
+logger = logging.getLogger(__name__)
+
+#: The controller's RTDE port (fixed by Universal Robots; ur_rtde always connects there).
+RTDE_PORT = 30004
+
+#: The output recipe the receive link asks for: what the arm reads, nothing more.
+RECEIVE_VARIABLES = (
+    "timestamp",
+    "actual_q",
+    "actual_TCP_pose",
+    "robot_mode",
+    "safety_mode",
+    "safety_status_bits",
+    "runtime_state",
+    "actual_digital_input_bits",
+    "actual_digital_output_bits",
+)
+
+
+class RtdeControlLink(Protocol):
+    """The part of `rtde_control.RTDEControlInterface` the arm uses (same names and arguments)."""
+
+    def setTcp(self, tcp_offset: list[float]) -> bool: ...
+    def moveJ(self, q: list[float], speed: float, acceleration: float, asynchronous: bool) -> bool: ...
+    def moveL(self, pose: list[float], speed: float, acceleration: float, asynchronous: bool) -> bool: ...
+    def getAsyncOperationProgress(self) -> int: ...
+    def initPeriod(self) -> Any: ...
+    def servoJ(
+        self,
+        q: list[float],
+        speed: float,
+        acceleration: float,
+        time: float,
+        lookahead_time: float,
+        gain: float,
+    ) -> bool: ...
+    def waitPeriod(self, t_cycle_start: Any) -> None: ...
+    def servoStop(self, a: float) -> bool: ...
+    def stopJ(self, a: float, asynchronous: bool) -> None: ...
+    def stopL(self, a: float, asynchronous: bool) -> None: ...
+    def stopScript(self) -> None: ...
+    def isConnected(self) -> bool: ...
+    def reconnect(self) -> bool: ...
+    def disconnect(self) -> None: ...
+
+
+class RtdeReceiveLink(Protocol):
+    """The part of `rtde_receive.RTDEReceiveInterface` the arm and the suction gripper use."""
+
+    def getActualQ(self) -> list[float]: ...
+    def getActualTCPPose(self) -> list[float]: ...
+    def isProtectiveStopped(self) -> bool: ...
+    def isEmergencyStopped(self) -> bool: ...
+    def getDigitalInState(self, input_id: int) -> bool: ...
+    def isConnected(self) -> bool: ...
+    def reconnect(self) -> bool: ...
+    def disconnect(self) -> None: ...
+
+
+class RtdeIOLink(Protocol):
+    """The part of `rtde_io.RTDEIOInterface` the suction gripper uses."""
+
+    def setStandardDigitalOut(self, output_id: int, signal_level: bool) -> bool: ...
+    def setToolDigitalOut(self, output_id: int, signal_level: bool) -> bool: ...
+    def reconnect(self) -> bool: ...
+    def disconnect(self) -> None: ...
+
+
+class RtdeLinks(Protocol):
+    """Opens the three links to a controller (the boundary tests replace)."""
+
+    def control(self, host: str) -> RtdeControlLink: ...
+    def receive(self, host: str) -> RtdeReceiveLink: ...
+    def io(self, host: str) -> RtdeIOLink: ...
+
+
+class URRtdeLinks:
+    """The real ur_rtde interfaces (extra `ur`: ``pip install 'prompose-grasp[ur]'``).
+
+    Args:
+        receive_frequency_hz: RTDE output rate asked of the controller; -1 is the controller's maximum
+            (500 Hz on e-Series, 125 Hz on CB3).
+    """
+
+    def __init__(self, receive_frequency_hz: float = -1.0):
+        self.receive_frequency_hz = float(receive_frequency_hz)
+
+    def control(self, host: str) -> RtdeControlLink:
+        return require("rtde_control", extra="ur").RTDEControlInterface(host)
+
+    def receive(self, host: str) -> RtdeReceiveLink:
+        module = require("rtde_receive", extra="ur")
+        return module.RTDEReceiveInterface(host, self.receive_frequency_hz, list(RECEIVE_VARIABLES))
+
+    def io(self, host: str) -> RtdeIOLink:
+        return require("rtde_io", extra="ur").RTDEIOInterface(host)
+
+
+@dataclass(frozen=True)
+class URRtdeConfig:
+    """Settings of `URRtdeArm`.
+
+    Attributes:
+        servo_rate_hz: servoJ rate of `follow` [Hz]; the controller's cycle (500 on e-Series, 125 on CB3).
+        lookahead_s: servoJ lookahead time [s], ur_rtde accepts [0.03, 0.2]; longer smooths, lags more.
+        gain: servoJ proportional gain, ur_rtde accepts [100, 2000]; higher tracks tighter, may oscillate.
+        poll_period_s: how often a running move is checked (progress, link, safety) [s].
+        check_every_servo_steps: link and safety checks during `follow`, every this many servo cycles.
+        stop_joint_decel_rad_s2: deceleration of stopJ / servoStop [rad/s^2].
+        stop_linear_decel_m_s2: deceleration of stopL [m/s^2].
+        move_timeout_margin_s: a move not finished this long after its trapezoid time limit is stopped and
+            reported (a controller that stopped answering progress) [s].
+        use_io: also open the IO link (for a suction gripper on the controller's digital outputs).
+    """
+
+    servo_rate_hz: float = 500.0
+    lookahead_s: float = 0.1
+    gain: float = 300.0
+    poll_period_s: float = 0.01
+    check_every_servo_steps: int = 10
+    stop_joint_decel_rad_s2: float = 2.0
+    stop_linear_decel_m_s2: float = 1.0
+    move_timeout_margin_s: float = 10.0
+    use_io: bool = False
+
+    def __post_init__(self) -> None:
+        if not (0.03 <= self.lookahead_s <= 0.2):
+            raise InvalidInputError(
+                f"URRtdeConfig.lookahead_s must be in [0.03, 0.2] s, got {self.lookahead_s}"
+            )
+        if not (100.0 <= self.gain <= 2000.0):
+            raise InvalidInputError(f"URRtdeConfig.gain must be in [100, 2000], got {self.gain}")
+        for name in (
+            "servo_rate_hz",
+            "poll_period_s",
+            "stop_joint_decel_rad_s2",
+            "stop_linear_decel_m_s2",
+            "move_timeout_margin_s",
+        ):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and v > 0):
+                raise InvalidInputError(f"URRtdeConfig.{name} must be finite and > 0, got {v}")
+        if int(self.check_every_servo_steps) < 1:
+            raise InvalidInputError("URRtdeConfig.check_every_servo_steps must be >= 1")
+
+
+class URRtdeArm(Arm):
+    """A UR arm over RTDE. See the module docstring for the safety behaviour.
+
+    Args:
+        host: the controller's IP address or host name.
+        robot: the arm's `RobotModel` with the gripper's TCP offset (sent to the controller with setTcp on
+            connect, so `getActualTCPPose` and `moveL` use the same TCP as the planner).
+            Default: ur5e, no tool.
+        validator_config: limits (default: the robot's own, `ValidatorConfig.for_robot`).
+        config: `URRtdeConfig`.
+        links: the link factory (default `URRtdeLinks()`, the real ur_rtde).
+    """
+
+    def __init__(
+        self,
+        host: str,
+        robot: RobotModel | None = None,
+        validator_config: ValidatorConfig | None = None,
+        config: URRtdeConfig | None = None,
+        links: RtdeLinks | None = None,
+    ):
+        if not isinstance(host, str) or not host.strip():
+            raise InvalidInputError(f"host must be the controller's IP address or name, got {host!r}")
+        self.host = host.strip()
+        self.robot = robot or load_robot()
+        self.validator = CommandValidator(
+            validator_config or ValidatorConfig.for_robot(self.robot), fk_tcp=self.robot.fk_tcp
+        )
+        self.config = config or URRtdeConfig()
+        self.links: RtdeLinks = links or URRtdeLinks()
+        self._control: Any = None
+        self._receive: Any = None
+        self._io: Any = None
+        self._stop_requested = threading.Event()
+        self._motion: str | None = None  # "joint", "linear", "servo" while a command runs
+
+    # ------------------------------------------------------------------------------------------ links
+    def connect(self) -> None:
+        """Open the receive, control (and IO) links and set the controller's TCP to the model's.
+
+        Raises `DeviceNotConnectedError` (at once when nothing listens on port 30004) with what to check.
+        """
+        if self._connected:
+            return
+        try:
+            self._receive = self.links.receive(self.host)
+            self._control = self.links.control(self.host)
+            if self.config.use_io:
+                self._io = self.links.io(self.host)
+        except RuntimeError as exc:
+            self._close_links()
+            raise DeviceNotConnectedError(
+                f"could not connect to the UR controller at {self.host} (RTDE port {RTDE_PORT}): "
+                f"{str(exc).strip()}. Check the cable and IP address, that the arm is powered on and "
+                "initialised, and on e-Series arms that it is in Remote Control mode (pendant, top right)."
+            ) from exc
+        super().connect()
+        self._stop_requested.clear()
+        tcp = pose_vector_from_T(self.robot.T_flange_tcp).tolist()
+        if not self._control.setTcp(tcp):
+            self.disconnect()
+            raise DeviceNotConnectedError(f"the controller at {self.host} refused setTcp({tcp})")
+        logger.info("connected to UR at %s; TCP set to %s", self.host, np.round(tcp, 4).tolist())
+
+    def disconnect(self) -> None:
+        """Stop any motion, end the controller script and close the links. Safe to call twice."""
+        if self._control is not None and self._connected:
+            if self._motion is not None:
+                self._send_stop()
+            try:
+                self._control.stopScript()
+            except RuntimeError as exc:
+                logger.warning("stopScript failed while disconnecting: %s", exc)
+        self._close_links()
+        super().disconnect()
+
+    def reconnect(self) -> None:
+        """Reopen the links after a `ConnectionLostError` (or a cleared safety stop) and set the TCP again."""
+        if self._control is None or self._receive is None:
+            self.connect()
+            return
+        try:
+            for link in (self._receive, self._control, self._io):
+                if link is not None and not link.reconnect():
+                    raise RuntimeError(f"{type(link).__name__}.reconnect() returned False")
+        except RuntimeError as exc:
+            raise DeviceNotConnectedError(
+                f"could not reconnect to the UR controller at {self.host}: {exc}"
+            ) from exc
+        self._connected = True
+        self._stop_requested.clear()
+        self._control.setTcp(pose_vector_from_T(self.robot.T_flange_tcp).tolist())
+
+    def _close_links(self) -> None:
+        for link in (self._control, self._receive, self._io):
+            if link is not None:
+                try:
+                    link.disconnect()
+                except RuntimeError as exc:
+                    logger.warning("closing %s: %s", type(link).__name__, exc)
+        self._control = self._receive = self._io = None
+
+    @property
+    def receive_link(self) -> RtdeReceiveLink:
+        """The open receive link (the suction gripper reads its vacuum input through it)."""
+        self._require()
+        return self._receive
+
+    @property
+    def io_link(self) -> RtdeIOLink:
+        """The open IO link (`URRtdeConfig(use_io=True)`)."""
+        self._require()
+        if self._io is None:
+            raise DeviceNotConnectedError(
+                "the IO link is not open: build the arm with URRtdeConfig(use_io=True)"
+            )
+        return self._io
+
+    # ------------------------------------------------------------------------------------------ checks
+    def _link_ok(self) -> bool:
+        try:
+            return bool(self._receive.isConnected()) and bool(self._control.isConnected())
+        except RuntimeError:
+            return False
+
+    def _check(self, what: str) -> None:
+        """Raise if a link dropped (after the stop path) or the controller is in a safety stop."""
+        if not self._link_ok():
+            self._lost(what)
+        if self._receive.isEmergencyStopped():
+            self._motion = None
+            raise EmergencyStopError(
+                f"{what}: the arm is emergency stopped; release the e-stop, re-enable the arm on the "
+                "pendant, then reconnect()"
+            )
+        if self._receive.isProtectiveStopped():
+            self._motion = None
+            raise ProtectiveStopError(
+                f"{what}: the arm is in a protective stop; find the cause, unlock it on the pendant, then "
+                "reconnect()"
+            )
+
+    def _lost(self, what: str) -> None:
+        """Connection-loss path: stop where the control link still answers, mark disconnected, raise."""
+        logger.error("%s: link to the UR controller at %s lost; stopping", what, self.host)
+        self._send_stop()
+        self._connected = False
+        raise ConnectionLostError(
+            f"{what}: the link to the UR controller at {self.host} was lost; a stop was sent where the "
+            "control link still answered (the controller also ends its script when its RTDE client goes). "
+            "Check the arm, then reconnect()"
+        )
+
+    def _send_stop(self) -> None:
+        motion, self._motion = self._motion, None
+        c = self.config
+        try:
+            if motion == "servo":
+                self._control.servoStop(c.stop_joint_decel_rad_s2)
+            elif motion == "linear":
+                self._control.stopL(c.stop_linear_decel_m_s2, False)
+            else:
+                self._control.stopJ(c.stop_joint_decel_rad_s2, False)
+        except RuntimeError as exc:  # the control link is gone too
+            logger.warning("stop command could not be sent: %s", exc)
+
+    # ------------------------------------------------------------------------------------------ state
+    def joint_positions(self) -> np.ndarray:
+        self._require()
+        self._check_link_only("joint_positions")
+        q = np.asarray(self._receive.getActualQ(), dtype=np.float64)
+        if q.shape != (6,) or not np.all(np.isfinite(q)):
+            raise ConnectionLostError(f"the controller reported joint positions {q.tolist()}")
+        return q
+
+    def tcp_pose(self) -> np.ndarray:
+        """(4, 4) T_base_tcp from `getActualTCPPose` (x, y, z, rotation vector) with the model's TCP."""
+        self._require()
+        self._check_link_only("tcp_pose")
+        return T_from_pose_vector(np.asarray(self._receive.getActualTCPPose(), dtype=np.float64))
+
+    def _check_link_only(self, what: str) -> None:
+        if not self._link_ok():
+            self._lost(what)
+
+    # ------------------------------------------------------------------------------------------ motion
+    def move_joints(self, q: ArrayLike, speed: float, accel: float) -> JointCommand:
+        self._require()
+        command = self.validator.validate_joint_move(q, speed, accel, q_current=self.joint_positions())
+        self._check("move_joints")
+        q_list = command.q.tolist()
+        timeout_s = _trapezoid_time(
+            float(np.max(np.abs(command.q - self.joint_positions()))),
+            command.speed_rad_s,
+            command.accel_rad_s2,
+        )
+        self._run_async(
+            "move_joints",
+            "joint",
+            lambda: self._control.moveJ(q_list, command.speed_rad_s, command.accel_rad_s2, True),
+            timeout_s,
+        )
+        return command
+
+    def move_linear(self, T_base_tcp: ArrayLike, speed: float, accel: float) -> LinearCommand:
+        self._require()
+        command = self.validator.validate_linear_move(T_base_tcp, speed, accel)
+        q_now = self.joint_positions()
+        result = self.robot.ik(command.T_base_tcp, q_seed=q_now, frame="tcp")
+        if not result.success:
+            raise UnreachableError(f"move_linear target not reachable: {result.message}")
+        # The end configuration goes through the joint checks too (limits, step, workspace).
+        self.validator.validate_configuration(result.q, q_now, "move_linear end configuration")
+        self._check("move_linear")
+        pose = pose_vector_from_T(command.T_base_tcp).tolist()
+        distance = float(np.linalg.norm(command.T_base_tcp[:3, 3] - self.tcp_pose()[:3, 3]))
+        timeout_s = _trapezoid_time(distance, command.speed_m_s, command.accel_m_s2)
+        self._run_async(
+            "move_linear",
+            "linear",
+            lambda: self._control.moveL(pose, command.speed_m_s, command.accel_m_s2, True),
+            timeout_s,
+        )
+        return command
+
+    def _run_async(self, what: str, motion: str, send, nominal_s: float) -> None:
+        """Send an asynchronous move and watch it: progress, link, safety, stop requests."""
+        self._stop_requested.clear()
+        self._motion = motion
+        try:
+            accepted = send()
+        except RuntimeError:
+            if not self._link_ok():
+                self._lost(what)
+            raise
+        if not accepted:
+            self._motion = None
+            self._check(what)  # a safety stop or a lost link explains a refusal
+            raise ConnectionLostError(f"{what}: the controller did not accept the command")
+        deadline = time.monotonic() + nominal_s + self.config.move_timeout_margin_s
+        while True:
+            if self._stop_requested.is_set():
+                return
+            try:
+                running = self._control.getAsyncOperationProgress() >= 0
+            except RuntimeError:
+                self._lost(what)
+            self._check(what)
+            if not running:
+                self._motion = None
+                return
+            if time.monotonic() > deadline:
+                self._send_stop()
+                raise ConnectionLostError(
+                    f"{what}: the move did not finish within "
+                    f"{nominal_s + self.config.move_timeout_margin_s:.1f} s; stopped"
+                )
+            time.sleep(self.config.poll_period_s)
+
+    def follow(self, trajectory: JointTrajectory) -> JointTrajectory:
+        """Stream a timed trajectory with servoJ at `servo_rate_hz` (linear interpolation between waypoints,
+        which stays within the validated waypoint steps and speeds), then servoStop."""
+        self._require()
+        q_now = self.joint_positions()
+        sent = self.validator.validate_trajectory(trajectory, q_now)
+        self._check("follow")
+        c = self.config
+        dt = 1.0 / c.servo_rate_hz
+        t_knots = np.concatenate([[0.0], sent.t_s]) if sent.t_s[0] > 0 else sent.t_s
+        q_knots = np.vstack([q_now, sent.q]) if sent.t_s[0] > 0 else sent.q
+        n = int(np.ceil(t_knots[-1] / dt)) + 1
+        times = np.minimum(np.arange(n) * dt, t_knots[-1])
+        Q = np.stack([np.interp(times, t_knots, q_knots[:, j]) for j in range(6)], axis=1)
+        self._stop_requested.clear()
+        self._motion = "servo"
+        for k, q in enumerate(Q):
+            if self._stop_requested.is_set():
+                return sent
+            if k % c.check_every_servo_steps == 0:
+                self._check("follow")
+            t_cycle = self._control.initPeriod()
+            try:
+                ok = self._control.servoJ(q.tolist(), 0.0, 0.0, dt, c.lookahead_s, c.gain)
+            except RuntimeError:
+                self._lost("follow")
+            if not ok:
+                self._check("follow")
+                self._send_stop()
+                raise ConnectionLostError("follow: the controller refused a servoJ command; stopped")
+            self._control.waitPeriod(t_cycle)
+        self._motion = None
+        self._control.servoStop(c.stop_joint_decel_rad_s2)
+        self._check("follow")
+        return sent
+
+    def stop(self) -> None:
+        """Decelerate to a stop now (stopJ / stopL / servoStop by what is running); callable from another
+        thread while a move blocks, which then returns."""
+        self._require()
+        self._stop_requested.set()
+        self._send_stop()
+
+
+def _trapezoid_time(distance: float, speed: float, accel: float) -> float:
+    """Duration of a rest-to-rest trapezoid (or triangle) profile over `distance` [s]."""
+    if distance <= 0:
+        return 0.0
+    if distance <= speed * speed / accel:
+        return 2.0 * float(np.sqrt(distance / accel))
+    return distance / speed + speed / accel

@@ -1,0 +1,100 @@
+"""`prompose-grasp run --dry-run`: the real pipeline on a recorded sequence, a fake arm that records the
+moves, and nothing sent to hardware.
+
+The recorded sequence is rendered here from the MuJoCo tabletop scene (tests may import `sim`; the library
+may not): one frame of the fixed `front` camera with its sensor noise, written as NNNNNN-color.png /
+NNNNNN-depth.png (uint16 millimetres) plus intrinsics.json, and the camera's T_base_cam as the hand-eye
+calibration file. The scene's ground truth (named `oracle_*`) is used only to check where the grasp went.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from prompose_grasp.cli import main
+from prompose_grasp.errors import InvalidInputError, UnknownNameError
+from prompose_grasp.hardware import CellSpec, write_intrinsics
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+SCENE = Path(__file__).resolve().parents[2] / "sim" / "scenes" / "tabletop_household.yaml"
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    from sim.scene_file import load_world
+
+    root = tmp_path_factory.mktemp("recording")
+    seq = root / "seq"
+    seq.mkdir()
+    with load_world(SCENE, seed=0) as world:
+        frame = world.render("front", rng=np.random.default_rng(0))
+        T_base_world = world.robot.T_base_world
+        oracle_bottle_base = (T_base_world @ world.T_world_obj("bottle"))[:3, 3]
+    cv2.imwrite(str(seq / "000000-color.png"), frame.rgb[..., ::-1])
+    depth_mm = np.round(frame.depth_m * 1000.0)
+    cv2.imwrite(str(seq / "000000-depth.png"), np.clip(depth_mm, 0, 65535).astype(np.uint16))
+    write_intrinsics(seq, frame.intrinsics, depth_scale_m=0.001)
+    calibration = root / "hand_eye.yaml"
+    calibration.write_text(yaml.safe_dump({"T_base_cam": frame.T_base_cam.tolist()}))
+    return seq, calibration, oracle_bottle_base
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_dry_run_completes_a_planned_pick_and_sends_nothing(recording, tmp_path, capsys, monkeypatch):
+    seq, calibration, oracle_bottle_base = recording
+
+    def no_hardware(*args, **kwargs):
+        raise AssertionError("a dry run must not open a device")
+
+    monkeypatch.setattr("prompose_grasp.hardware.run.URRtdeArm", no_hardware)
+    monkeypatch.setattr("prompose_grasp.hardware.run.RobotiqGripper", no_hardware)
+    monkeypatch.setattr("prompose_grasp.hardware.run._current_q", no_hardware)
+    out = tmp_path / "run.json"
+    argv = ["run", "--robot", "ur5e", "--gripper", "robotiq", "--camera", str(seq),
+            "--command", "pick up the green bottle", "--calibration", str(calibration),
+            "--dry-run", "--json", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "dry run" in printed and "none sent" in printed
+    result = json.loads(out.read_text())
+    assert result["dry_run"] is True and result["outcome"]["success"] is True
+    kinds = [m.split()[0] + (" " + m.split()[1] if m.startswith("gripper") else "") for m in result["moves"]]
+    # The pick: open, free move to the pre-grasp, straight approach, close, straight lift.
+    assert kinds == ["gripper open", "moveJ", "moveL", "gripper close,", "moveL"]
+    T_grasp = np.asarray(result["grasp_T_base_tcp"])
+    # The grasp centre is on the bottle: within 2 cm of its true axis (the bottle's radius is ~3 cm; a
+    # grasp further off would close on its edge or miss it).
+    assert np.linalg.norm(T_grasp[:2, 3] - oracle_bottle_base[:2]) < 0.02
+    approach, lift = result["linear_moves_tcp_xyz_m"]
+    np.testing.assert_allclose(approach, T_grasp[:3, 3], atol=1e-9)  # the grasp pose is what was sent
+    # The lift raises the object by at least what the pipeline counts as picked (moved_min_m = 5 cm).
+    assert lift[2] - approach[2] >= 0.05
+
+
+def test_cell_spec_checks_its_choices(tmp_path):
+    with pytest.raises(UnknownNameError, match="robotiq, suction"):
+        CellSpec("ur5e", "10.0.0.2", "magnet", "realsense", "cal.yaml")
+    with pytest.raises(InvalidInputError, match="--host"):
+        CellSpec("ur5e", None, "robotiq", "realsense", "cal.yaml")
+    with pytest.raises(UnknownNameError, match="realsense, kinect"):
+        CellSpec("ur5e", "10.0.0.2", "robotiq", str(tmp_path / "missing"), "cal.yaml")
+
+
+def test_cli_run_refuses_a_bad_calibration_with_exit_2(tmp_path, capsys):
+    (tmp_path / "000000-color.png").write_bytes(b"")
+    (tmp_path / "000000-depth.png").write_bytes(b"")
+    bad = tmp_path / "cal.yaml"
+    bad.write_text(yaml.safe_dump({"T_base_cam": np.diag([1.0, 2.0, 1.0, 1.0]).tolist()}))
+    argv = ["run", "--gripper", "robotiq", "--camera", str(tmp_path), "--command", "pick up the mug",
+            "--calibration", str(bad), "--dry-run"]  # fmt: skip
+    assert main(argv) == 2
+    assert "not a rotation" in capsys.readouterr().err

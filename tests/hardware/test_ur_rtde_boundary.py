@@ -1,0 +1,232 @@
+"""URRtdeArm against stand-ins at our own boundary (`RtdeLinks`): the exact ur_rtde calls and their order,
+validator refusals that never reach the wire, the stop paths and the typed errors."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+from rtde_fakes import CallLog, FakeControl, FakeIO, FakeLinks, FakeReceive
+
+from prompose_grasp.errors import DeviceNotConnectedError, UnsafeCommandError
+from prompose_grasp.geometry.se3 import T_from_pose_vector, pose_vector_from_T
+from prompose_grasp.hardware import (
+    ConnectionLostError,
+    EmergencyStopError,
+    ProtectiveStopError,
+    URRtdeArm,
+    URRtdeConfig,
+)
+from prompose_grasp.robot import HOME_Q, JointTrajectory, load_robot
+
+TCP_Z_M = 0.145
+ROBOT = load_robot("ur5e", tcp_offset=[0.0, 0.0, TCP_Z_M])
+
+
+def make_arm(moving_polls: int = 3, config: URRtdeConfig | None = None):
+    log = CallLog()
+    control = FakeControl(log, moving_polls=moving_polls)
+    receive = FakeReceive(HOME_Q, pose_vector_from_T(ROBOT.fk_tcp(HOME_Q)))
+    links = FakeLinks(control, receive, FakeIO(log))
+    arm = URRtdeArm("10.0.0.2", ROBOT, config=config or URRtdeConfig(poll_period_s=0.001), links=links)
+    return arm, control, receive, log, links
+
+
+def test_connect_opens_receive_then_control_and_sets_the_models_tcp():
+    arm, _, _, log, links = make_arm()
+    arm.connect()
+    assert links.opened == ["receive", "control"]
+    assert log.names() == ["setTcp"]
+    # The TCP pose vector of a pure translation along flange z: (0, 0, 0.145, 0, 0, 0).
+    np.testing.assert_allclose(log[0][1][0], [0, 0, TCP_Z_M, 0, 0, 0], atol=1e-15)  # exact up to rounding
+    arm.disconnect()
+
+
+def test_move_joints_sends_one_async_moveJ_then_polls_until_done():
+    arm, _, _, log, _ = make_arm(moving_polls=3)
+    with arm:
+        q = HOME_Q + np.array([0.1, -0.05, 0.05, 0.0, 0.1, -0.2])
+        sent = arm.move_joints(q, 0.5, 1.0)
+    assert log.names() == ["setTcp", "moveJ"] + ["getAsyncOperationProgress"] * 4 + [
+        "stopScript",
+        "disconnect",
+    ]
+    _, (q_sent, speed, accel, asynchronous) = log[1]
+    assert q_sent == q.tolist() and (speed, accel, asynchronous) == (0.5, 1.0, True)
+    np.testing.assert_array_equal(sent.q, q)
+
+
+def test_move_linear_sends_the_ur_pose_vector_of_the_target():
+    arm, _, _, log, _ = make_arm(moving_polls=0)
+    T = ROBOT.fk_tcp(HOME_Q)
+    T[:3, 3] += [0.02, -0.03, -0.05]
+    with arm:
+        arm.move_linear(T, 0.1, 0.5)
+    name, (pose, speed, accel, asynchronous) = log[1]
+    assert name == "moveL" and (speed, accel, asynchronous) == (0.1, 0.5, True)
+    # Round trip through (x, y, z, rotation vector): float64 rounding only.
+    np.testing.assert_allclose(T_from_pose_vector(pose), T, atol=1e-12)
+    np.testing.assert_allclose(pose[:3], T[:3, 3], atol=0)  # the translation is copied, not computed
+
+
+def test_tcp_pose_is_the_receive_pose_vector_as_a_transform():
+    arm, _, receive, _, _ = make_arm()
+    with arm:
+        T = arm.tcp_pose()
+        q = arm.joint_positions()
+    np.testing.assert_array_equal(q, HOME_Q)
+    # The fake reports the model's own FK, so the conversion must give it back (float64 rounding).
+    np.testing.assert_allclose(T, ROBOT.fk_tcp(HOME_Q), atol=1e-12)
+    np.testing.assert_allclose(T, T_from_pose_vector(receive.tcp_pose), atol=0)
+
+
+def test_follow_streams_servoJ_at_the_controller_rate_then_servoStop():
+    rate = 500.0
+    arm, _, _, log, _ = make_arm(config=URRtdeConfig(servo_rate_hz=rate, lookahead_s=0.05, gain=500))
+    dq = np.array([0.02, -0.02, 0.02, 0.01, -0.01, 0.02])
+    traj = JointTrajectory(t_s=np.array([0.1, 0.2, 0.3]), q=HOME_Q + np.outer([1, 2, 3], dq))
+    with arm:
+        arm.follow(traj)
+    names = log.names()
+    servo = [args for name, args in log if name == "servoJ"]
+    # 0.3 s at 2 ms: samples at 0, 2, ..., 300 ms.
+    assert len(servo) == round(0.3 * rate) + 1
+    body = names[1 : 1 + 3 * len(servo)]
+    assert body == ["initPeriod", "servoJ", "waitPeriod"] * len(servo)
+    assert names[1 + 3 * len(servo)] == "servoStop"
+    np.testing.assert_allclose(servo[0][0], HOME_Q, atol=0)  # starts where the arm stands
+    np.testing.assert_allclose(servo[-1][0], traj.q[-1], atol=1e-15)  # ends on the last waypoint
+    assert servo[0][1:] == (0.0, 0.0, 1.0 / rate, 0.05, 500)
+    # Linear interpolation: halfway to the first waypoint at 50 ms.
+    np.testing.assert_allclose(servo[25][0], HOME_Q + 0.5 * dq, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        lambda arm: arm.move_joints(
+            HOME_Q + np.array([0, 0, 0, 0, 0, 7.0]), 0.5, 1.0
+        ),  # beyond the wrist limit
+        lambda arm: arm.move_joints(HOME_Q + np.array([np.nan, 0, 0, 0, 0, 0]), 0.5, 1.0),
+        lambda arm: arm.move_joints(HOME_Q + 0.1, 50.0, 1.0),  # speed above the cap
+        lambda arm: arm.move_linear(np.diag([1.0, 1.0, 1.0, 1.0]) * 2, 0.1, 0.5),  # not rigid
+        lambda arm: arm.move_linear(T_from_pose_vector([3.0, 0, 0.3, np.pi, 0, 0]), 0.1, 0.5),  # workspace
+        lambda arm: arm.follow(JointTrajectory(t_s=np.array([0.01]), q=(HOME_Q + 0.15)[None])),  # too fast
+    ],
+)
+def test_validator_refusals_never_reach_the_wire(bad):
+    arm, _, _, log, _ = make_arm()
+    with arm:
+        before = len(log)
+        with pytest.raises(UnsafeCommandError):
+            bad(arm)
+        assert len(log) == before  # not one call after the refusal
+        assert arm.is_connected
+
+
+def test_control_link_lost_mid_move_takes_the_stop_path_and_raises():
+    arm, control, _, log, _ = make_arm(moving_polls=100)
+    polls = []
+
+    def drop():
+        polls.append(1)
+        if len(polls) == 3:
+            control.connected = False
+            raise RuntimeError("RTDE control: socket closed")
+
+    control.hooks["getAsyncOperationProgress"] = drop
+    arm.connect()
+    with pytest.raises(ConnectionLostError, match="lost"):
+        arm.move_joints(HOME_Q + 0.05, 0.5, 1.0)
+    names = log.names()
+    assert names[names.index("moveJ") + 1 :] == ["getAsyncOperationProgress"] * 3 + ["stopJ"]
+    assert not arm.is_connected
+    with pytest.raises(DeviceNotConnectedError):
+        arm.move_joints(HOME_Q, 0.5, 1.0)
+
+
+def test_receive_link_lost_mid_servo_stops_with_servoStop():
+    arm, control, receive, log, _ = make_arm()
+    count = []
+
+    def drop():
+        count.append(1)
+        if len(count) == 15:
+            receive.connected = False
+
+    control.hooks["servoJ"] = drop
+    traj = JointTrajectory(t_s=np.array([0.2]), q=(HOME_Q + 0.02)[None])
+    arm.connect()
+    with pytest.raises(ConnectionLostError):
+        arm.follow(traj)
+    names = log.names()
+    assert names[-1] == "servoStop" and names.count("servoJ") < 101  # stopped before the end (101 samples)
+
+
+def test_protective_stop_during_a_move_raises_a_typed_error():
+    arm, control, receive, log, _ = make_arm(moving_polls=100)
+    polls = []
+
+    def trip():
+        polls.append(1)
+        if len(polls) == 2:
+            receive.protective = True
+
+    control.hooks["getAsyncOperationProgress"] = trip
+    with arm:
+        with pytest.raises(ProtectiveStopError, match="protective stop"):
+            arm.move_joints(HOME_Q + 0.05, 0.5, 1.0)
+        # Nothing more is sent while the stop holds.
+        n = len(log)
+        with pytest.raises(ProtectiveStopError):
+            arm.move_joints(HOME_Q, 0.5, 1.0)
+        assert len(log) == n
+
+
+def test_emergency_stop_refuses_before_sending():
+    arm, _, receive, log, _ = make_arm()
+    with arm:
+        receive.emergency = True
+        with pytest.raises(EmergencyStopError):
+            arm.move_linear(ROBOT.fk_tcp(HOME_Q), 0.1, 0.5)
+        assert "moveL" not in log.names()
+
+
+def test_stop_from_another_thread_ends_a_blocking_move():
+    arm, _, _, log, _ = make_arm(moving_polls=10**9)
+    with arm:
+        threading.Timer(0.05, arm.stop).start()
+        arm.move_joints(HOME_Q + 0.05, 0.5, 1.0)  # returns once stopped
+    names = log.names()
+    assert "stopJ" in names and names.index("stopJ") > names.index("moveJ")
+    assert names[-2:] == ["stopScript", "disconnect"]
+
+
+def test_disconnect_ends_the_script_and_reconnect_restores_the_tcp():
+    arm, control, _, log, _ = make_arm()
+    arm.connect()
+    control.connected = False
+    with pytest.raises(ConnectionLostError):
+        arm.joint_positions()
+    arm.reconnect()
+    assert log.names()[-2:] == ["reconnect", "setTcp"]
+    np.testing.assert_array_equal(arm.joint_positions(), HOME_Q)
+    arm.disconnect()
+    assert log.names()[-2:] == ["stopScript", "disconnect"]
+
+
+def test_refused_connection_is_a_clear_error():
+    class Refusing(FakeLinks):
+        def receive(self, host):
+            raise RuntimeError(f"Error: Could not connect to: {host} at 30004, verify the IP")
+
+    arm = URRtdeArm("10.0.0.9", ROBOT, links=Refusing())
+    with pytest.raises(DeviceNotConnectedError, match="Remote Control"):
+        arm.connect()
+    assert not arm.is_connected
+    t0 = time.monotonic()
+    with pytest.raises(DeviceNotConnectedError):
+        arm.move_joints(HOME_Q, 0.5, 1.0)
+    assert time.monotonic() - t0 < 1.0  # no retry loop: refused at once (wide bound for a loaded machine)
