@@ -23,7 +23,7 @@ from prompose_grasp.robot.kinematics import (
 )
 from prompose_grasp.robot.ur_models import URSpec
 
-__all__ = ["ik_branches_batch", "ik_nearest_batch", "nearest_in_limits_batch"]
+__all__ = ["ik_branches_batch", "ik_nearest_batch", "link_frames_batch", "nearest_in_limits_batch"]
 
 # Same meaning and values as in robot.kinematics (arcsin/arccos argument slack, wrist singularity).
 _ARG_SLACK = 1e-9
@@ -184,6 +184,20 @@ def ik_nearest_batch(
     T = np.asarray(T_base_flange, dtype=np.float64)
     n = T.shape[0]
     seed = np.asarray(q_seed, dtype=np.float64)
+    # Early out (sound): the wrist-2 centre is at most sqrt((|a2| + |a3| + d5)^2 + d4^2) from the shoulder
+    # (a2, a3, d5 lie in the arm's plane, d4 normal to it); the rows beyond have no branch at all.
+    p5 = T[:, :3, 3] - spec.d6 * T[:, :3, 2]
+    reach2 = (abs(spec.a2) + abs(spec.a3) + abs(spec.d5)) ** 2 + spec.d4**2
+    near = np.sum((p5 - [0.0, 0.0, spec.d1]) ** 2, axis=1) <= reach2 * (1.0 + 1e-9)
+    if not np.all(near):
+        q_out = np.full((n, 6), np.nan)
+        ok_out = np.zeros(n, dtype=bool)
+        br_out = np.full((n, 8, 6), np.nan)
+        rows = np.flatnonzero(near)
+        if rows.size:
+            s = seed[rows] if seed.ndim == 2 else seed
+            q_out[rows], ok_out[rows], br_out[rows] = ik_nearest_batch(spec, T[rows], s, lower, upper)
+        return q_out, ok_out, br_out
     Q, valid = _branches_unverified(spec, T, seed[..., 5])
     shifted, ok, dist = nearest_in_limits_batch(Q, valid, seed, lower, upper)
     order = np.argsort(dist, axis=1, kind="stable")
@@ -224,3 +238,21 @@ def ik_nearest_batch(
 
 def _branches_unverified(spec: URSpec, T: np.ndarray, q6_if_singular) -> tuple[np.ndarray, np.ndarray]:
     return ik_branches_batch(spec, T, q6_if_singular, verify=False)
+
+
+def link_frames_batch(spec: URSpec, Q: np.ndarray) -> np.ndarray:
+    """(N, 8, 4, 4) poses in `base` of the URDF link frames base, shoulder_link .. wrist_3_link, flange for N
+    configurations Q (N, 6) [rad]: `RobotModel.link_frames` on arrays (URDF link i+1 is DH frame i turned by
+    q_i about its z; the flange is DH frame 6)."""
+    Q = np.asarray(Q, dtype=np.float64)
+    if Q.ndim != 2 or Q.shape[1] != 6:
+        raise InvalidInputError(f"Q must have shape (N, 6) [rad], got {Q.shape}")
+    n = Q.shape[0]
+    out = np.empty((n, 8, 4, 4))
+    out[:, 0] = np.eye(4)
+    F = np.broadcast_to(np.eye(4), (n, 4, 4))
+    for i in range(6):
+        out[:, i + 1] = F @ dh_transforms(Q[:, i], 0.0, 0.0, 0.0)
+        F = F @ dh_transforms(Q[:, i], spec.d_m[i], spec.a_m[i], spec.alpha_rad[i])
+    out[:, 7] = F
+    return out

@@ -39,6 +39,7 @@ from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometr
 from prompose_grasp.grasp.scene import CollisionScene
 from prompose_grasp.grasp.synthesis import Candidates, antipodal_grasps, box_grasps, suction_grasps
 from prompose_grasp.grasp.types import Grasp, GraspConfig, GraspPlan, ObjectModel, Plane
+from prompose_grasp.robot.kinematics import fk_batch
 from prompose_grasp.robot.model import RobotModel
 
 __all__ = ["build_scene", "generate_candidates", "gripper_hulls", "plan_grasps", "robot_self_capsules"]
@@ -297,20 +298,16 @@ def plan_grasps(
             np.linalg.norm(np.nan_to_num(q_near - seeds, nan=np.inf), axis=1) <= _SAME_BRANCH_RAD
         )
         n_chunk = len(idx)
+        approach_ok = near_ok[:n_chunk] & near_ok[n_chunk:]
+        q_free = _free_branches(robot, scene, q_all, branches, idx, approach_ok, T_grasp @ T_tcp_flange, cfg)
         for r, i in enumerate(idx):
             if len(grasps) >= cfg.max_grasps and not cfg.exhaustive:
                 n_unchecked += 1
                 continue
-            if not (near_ok[r] and near_ok[n_chunk + r]):
+            if not approach_ok[r]:
                 status[i] = "ik_approach"
                 continue
-            q_ok = None
-            for q in _branch_order(q_all[i], branches[i])[: cfg.arm_branches]:
-                if q is not q_all[i] and not _verified(robot, q, T_grasp[r] @ T_tcp_flange):
-                    continue
-                if scene.arm_hit(robot, q) is None:
-                    q_ok = q
-                    break
+            q_ok = q_free[r]
             if q_ok is None:
                 status[i] = "arm_collision"
                 continue
@@ -342,6 +339,48 @@ def plan_grasps(
     return GraspPlan(tuple(grasps), dict(rejected), n, n_unchecked, timings)
 
 
+def _free_branches(
+    robot: RobotModel,
+    scene: CollisionScene,
+    q_all: np.ndarray,
+    branches: np.ndarray,
+    idx: np.ndarray,
+    rows_ok: np.ndarray,
+    T_base_flange: np.ndarray,
+    cfg: GraspConfig,
+) -> list[np.ndarray | None]:
+    """Per candidate row of `idx` (where `rows_ok`), the first of its `arm_branches` branches (the picked one,
+    then the other in-limit ones nearest the seed, each verified by forward kinematics) whose link capsules
+    are clear of the scene, or None. One batched arm query per branch rank."""
+    out: list[np.ndarray | None] = [None] * len(idx)
+    lists = [
+        _branch_order(q_all[i], branches[i])[: cfg.arm_branches] if ok else [] for i, ok in zip(idx, rows_ok)
+    ]
+    for b in range(cfg.arm_branches):
+        rows = [r for r in range(len(idx)) if out[r] is None and len(lists[r]) > b]
+        if not rows:
+            break
+        Q = np.array([lists[r][b] for r in rows])
+        if b > 0:
+            # Branches other than the picked one are unverified: keep those whose forward kinematics reach.
+            good = _verified_batch(robot, Q, T_base_flange[rows])
+            rows, Q = [r for r, g in zip(rows, good) if g], Q[good]
+            if not rows:
+                continue
+        for r, q, hit in zip(rows, Q, scene.arm_hits_batch(robot, Q)):
+            if hit is None:
+                out[r] = q
+    return out
+
+
+def _verified_batch(robot: RobotModel, Q: np.ndarray, T_base_flange: np.ndarray) -> np.ndarray:
+    """(N,) `_verified` for N configurations at once."""
+    T = fk_batch(robot.spec, Q)
+    return (np.linalg.norm(T[:, :3, 3] - T_base_flange[:, :3, 3], axis=1) <= 1e-7) & (
+        np.linalg.norm(T[:, :3, :3] - T_base_flange[:, :3, :3], axis=(1, 2)) <= 1e-7
+    )
+
+
 def _distinct_placements(cands: Candidates, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(representative rows, inverse): rows whose gripper fills the same space (same tcp position, approach,
     closing line up to its sign, opening; to 1e-9) share one representative; `inverse` maps each of `rows`
@@ -365,12 +404,16 @@ def _target_points_inside(
         V = V[:: max(1, len(V) // 256)]
     else:
         V = target.pose.corners()
-    # Vertices in each pose's tcp frame: (N, V, 3).
-    local = (V[None, :, :] - T[:, None, :3, 3]) @ T[:, :3, :3]
+    # Vertex coordinates along each tcp axis in each pose's frame: three (N, V) arrays (elementwise tests on
+    # them are much cheaper than reductions over a trailing axis of length 3).
+    rel = V[None, :, :] - T[:, None, :3, 3]  # (N, V, 3)
     hit = np.zeros(len(T), dtype=bool)
+    axes = [np.matmul(rel, T[:, :3, a, None])[:, :, 0] for a in range(3)]
     for k, half in enumerate(halves):
-        d = np.abs(local - centres_tcp[:, None, k, :])
-        hit |= np.any(np.all(d <= np.asarray(half), axis=2), axis=1)
+        inside = np.abs(axes[0] - centres_tcp[:, None, k, 0]) <= half[0]
+        inside &= np.abs(axes[1] - centres_tcp[:, None, k, 1]) <= half[1]
+        inside &= np.abs(axes[2] - centres_tcp[:, None, k, 2]) <= half[2]
+        hit |= inside.any(axis=1)
     return hit
 
 

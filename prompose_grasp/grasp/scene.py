@@ -10,10 +10,15 @@ One `CollisionScene` holds, in `base`:
   gripper box is found because one of its triangles intersects or lies in the box);
 - the target itself (separately: grasps must touch it, so only some checks include it).
 
-Queries go through fcl's `DynamicAABBTreeCollisionManager` (broadphase) and report *what* was hit: the kind
-("object", "fixture", "points", "target", "support") and the obstacle's name. Batched queries (many gripper
-poses at once) register all the query boxes in one manager and collide it with the scene manager, so the
-broadphase runs once in C++ and Python sees only the pairs whose bounding boxes overlap.
+Single queries (`collide_object`, `arm_hit`) go through fcl's `DynamicAABBTreeCollisionManager`
+(broadphase). Batched queries (hundreds of gripper poses, or arm configurations, at once: `boxes_first_hits`,
+`arm_hits_batch`) run their broadphase in numpy instead: world bounding boxes, then the separating-axis test
+between each query's oriented box and each scene item's oriented bounding box (obstacle boxes, the oriented
+bounds of meshes in their pose frame, 10 cm blocks of voxels). Box against box is decided there exactly (the
+test is exact for boxes), a box against voxels by the same test against each voxel cube of the overlapping
+blocks, and only the pairs left (a box or capsule against a mesh, a capsule against voxels or a box) go to
+fcl's narrowphase, one `fcl.collide` each, skipping queries already known to collide. Every query reports
+*what* was hit: the kind ("object", "fixture", "points", "target", "support") and the obstacle's name.
 """
 
 from __future__ import annotations
@@ -27,15 +32,22 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from prompose_grasp.errors import InvalidInputError
+from prompose_grasp.grasp.batch_ik import link_frames_batch
 from prompose_grasp.grasp.synthesis import cross
 from prompose_grasp.grasp.types import ObjectModel, Plane
 
-__all__ = ["CollisionScene", "Hit", "voxelize_points"]
+__all__ = ["CollisionScene", "Hit", "obb_overlap", "voxelize_points"]
 
 log = logging.getLogger(__name__)
 
-#: Edge of the blocks the voxel meshes are split into [m] (about a swept gripper box: fewer pairs).
-_VOXEL_BLOCK_M = 0.25
+#: Edge of the blocks the voxel meshes are split into [m] (about a gripper box: tight block bounds let the
+#: broadphase skip most blocks, and few voxels per block reach the exact per-voxel test).
+_VOXEL_BLOCK_M = 0.10
+#: Kinds of scene items of the numpy broadphase: a box decided exactly by the separating-axis test, a geometry
+#: that needs fcl's narrowphase (mesh), a block of voxel cubes (decided per cube).
+_EXACT_BOX, _NARROWPHASE, _VOXELS = 0, 1, 2
+#: Slack of the separating-axis test [m] and of its near-parallel edge axes [-]: touching boxes overlap.
+_SAT_EPS = 1e-12
 #: Links that stand on the support (never checked against it).
 _BASE_LINKS = ("base", "shoulder_link")
 
@@ -64,6 +76,10 @@ class Hit:
         return f"collision_{self.kind}"
 
 
+#: Placeholder result of a query that is not to be checked (never returned).
+_MASK = Hit("masked", "")
+
+
 def _transform(R: np.ndarray, t: np.ndarray) -> fcl.Transform:
     return fcl.Transform(np.ascontiguousarray(R, dtype=np.float64), np.ascontiguousarray(t, dtype=np.float64))
 
@@ -88,6 +104,46 @@ def _object_geometry(obj: ObjectModel) -> tuple[fcl.CollisionGeometry, fcl.Trans
     if obj.mesh is not None:
         return _bvh(np.asarray(obj.mesh.vertices), np.asarray(obj.mesh.faces)), fcl.Transform()
     return fcl.Box(*obj.pose.size), _transform(obj.pose.R, obj.pose.t)
+
+
+def _object_bounds(obj: ObjectModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """(centre (3,), R (3, 3), half extents (3,), item kind): the object's box, or for a mesh the bounds of
+    its vertices in the box frame (a mesh need not fit its estimated box)."""
+    R = np.asarray(obj.pose.R, dtype=np.float64)
+    if obj.mesh is None:
+        return np.asarray(obj.pose.t, dtype=np.float64), R, np.asarray(obj.pose.size) / 2.0, _EXACT_BOX
+    local = (np.asarray(obj.mesh.vertices, dtype=np.float64) - obj.pose.t) @ R
+    lo, hi = local.min(axis=0), local.max(axis=0)
+    return obj.pose.t + R @ ((lo + hi) / 2.0), R, (hi - lo) / 2.0, _NARROWPHASE
+
+
+def obb_overlap(
+    ca: np.ndarray, Ra: np.ndarray, ha: np.ndarray, cb: np.ndarray, Rb: np.ndarray, hb: np.ndarray
+) -> np.ndarray:
+    """(P,) True where oriented boxes a and b overlap (touching counts): the separating-axis test over the
+    15 axes (3 + 3 face normals, 9 edge pairs), exact for boxes.
+
+    Args:
+        ca, cb: (P, 3) centres [m]; Ra, Rb: (P, 3, 3) rotations (columns = box axes in the common frame);
+        ha, hb: (P, 3) half extents [m]. Any of b's may be broadcast from (3,), (3, 3).
+    """
+    Rb = np.broadcast_to(Rb, Ra.shape)
+    hb = np.broadcast_to(hb, ha.shape)
+    R = np.matmul(np.swapaxes(Ra, 1, 2), Rb)  # b's axes in a's frame
+    t = np.matmul(np.swapaxes(Ra, 1, 2), (cb - ca)[:, :, None])[:, :, 0]  # b's centre in a's frame
+    A = np.abs(R) + _SAT_EPS
+    ga = np.abs(t) - ha - np.matmul(A, hb[:, :, None])[:, :, 0]
+    tb = np.matmul(np.swapaxes(R, 1, 2), t[:, :, None])[:, :, 0]
+    gb = np.abs(tb) - np.matmul(np.swapaxes(A, 1, 2), ha[:, :, None])[:, :, 0] - hb
+    sep = (ga[:, 0] > 0) | (ga[:, 1] > 0) | (ga[:, 2] > 0) | (gb[:, 0] > 0) | (gb[:, 1] > 0) | (gb[:, 2] > 0)
+    for i in range(3):
+        i1, i2 = (i + 1) % 3, (i + 2) % 3
+        for j in range(3):
+            j1, j2 = (j + 1) % 3, (j + 2) % 3
+            ra = ha[:, i1] * A[:, i2, j] + ha[:, i2] * A[:, i1, j]
+            rb = hb[:, j1] * A[:, i, j2] + hb[:, j2] * A[:, i, j1]
+            sep |= np.abs(t[:, i2] * R[:, i1, j] - t[:, i1] * R[:, i2, j]) > ra + rb
+    return ~sep
 
 
 class CollisionScene:
@@ -129,6 +185,9 @@ class CollisionScene:
         self.support = support
         self.target = target
         self._labels: dict[int, Hit] = {}
+        # Scene items of the numpy broadphase: fcl object, label, oriented bounds, kind, voxel centres.
+        self._items: list[tuple[fcl.CollisionObject, Hit, np.ndarray | None]] = []
+        bounds: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = []
         objects = []
         for obs in obstacles:
             if not isinstance(obs, ObjectModel):
@@ -137,6 +196,8 @@ class CollisionScene:
                 continue  # entirely below the support plane: the plane already stands for it
             geom, tf = _object_geometry(obs)
             objects.append(self._register(geom, tf, Hit(obs.kind, obs.name)))
+            self._items.append((objects[-1], Hit(obs.kind, obs.name), None))
+            bounds.append(_object_bounds(obs))
         self.voxel_centres = np.zeros((0, 3))
         self.voxel_size_m = float(voxel_size_m)
         if points_base is not None:
@@ -173,18 +234,31 @@ class CollisionScene:
                     objects.append(
                         self._register(_bvh(V, F), fcl.Transform(), Hit("points", "observed points"))
                     )
+                    lo, hi = C.min(axis=0) - voxel_size_m / 2.0, C.max(axis=0) + voxel_size_m / 2.0
+                    self._items.append((objects[-1], Hit("points", "observed points"), C))
+                    bounds.append(((lo + hi) / 2.0, np.eye(3), (hi - lo) / 2.0, _VOXELS))
         self.n_obstacle_objects = len(objects)
         self.manager = fcl.DynamicAABBTreeCollisionManager()
         if objects:
             self.manager.registerObjects(objects)
         self.manager.setup()
         self.target_object = None
+        self._target_item: tuple[np.ndarray, np.ndarray, np.ndarray, int] | None = None
         if target is not None:
             geom, tf = _object_geometry(target)
             self.target_object = self._register(geom, tf, Hit("target", target.name))
             self.target_manager = fcl.DynamicAABBTreeCollisionManager()
             self.target_manager.registerObjects([self.target_object])
             self.target_manager.setup()
+            self._target_item = _object_bounds(target)
+        # The items' bounds as arrays: centres (M, 3), rotations (M, 3, 3), half extents (M, 3), kinds (M,),
+        # and the half extents of their world bounding boxes (M, 3).
+        self._item_c = np.array([b[0] for b in bounds]).reshape(-1, 3)
+        self._item_R = np.array([b[1] for b in bounds]).reshape(-1, 3, 3)
+        self._item_h = np.array([b[2] for b in bounds]).reshape(-1, 3)
+        self._item_kind = np.array([b[3] for b in bounds], dtype=np.int64)
+        self._item_ext = np.matmul(np.abs(self._item_R), self._item_h[:, :, None])[:, :, 0]
+        self._nohit_request = fcl.CollisionRequest(num_max_contacts=1, enable_contact=False)
         self.support_object = None
         if support is not None:
             # fcl's halfspace is {x: n.x <= d}; the solid below the plane n.x + offset = 0 is n.x <= -offset.
@@ -253,6 +327,102 @@ class CollisionScene:
             pool.append((geom, fcl.CollisionObject(geom, fcl.Transform())))
         return pool[:n]
 
+    def _resolve(
+        self,
+        qc: np.ndarray,
+        qR: np.ndarray,
+        qh: np.ndarray,
+        owner: np.ndarray,
+        hits: list,
+        exact: np.ndarray | bool,
+        query_object,
+        label,
+        items: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+        objects: Sequence[tuple[fcl.CollisionObject, Hit, np.ndarray | None]],
+    ) -> int:
+        """Fill `hits[owner[q]]` (where still None) with what query q touches among `items`.
+
+        Args:
+            qc, qR, qh: (Q, 3), (Q, 3, 3), (Q, 3) the queries' oriented boxes: the query itself where `exact`
+                ((Q,) bool or one bool), else a box bounding it (a capsule, a cylinder).
+            owner: (Q,) result slot of each query (a pose's or configuration's queries share one).
+            query_object: q -> an fcl object placed at query q, for the narrowphase.
+            label: (Hit of the scene item, q) -> the Hit to report.
+            items: (centres, R, halves, kinds, world half extents) of the scene items; objects: their
+                (fcl object, Hit, voxel centres or None).
+
+        Returns:
+            the number of fcl narrowphase calls made.
+        """
+        free = np.array([h is None for h in hits], dtype=bool)
+        alive = free[owner]
+        exact_q = np.broadcast_to(np.asarray(exact, dtype=bool), alive.shape)
+        ic, iR, ih, ikind, iext = items
+        if not np.any(alive) or len(ic) == 0:
+            return 0
+        qidx = np.flatnonzero(alive)
+        qext = np.matmul(np.abs(qR[qidx]), qh[qidx][:, :, None])[:, :, 0]
+        qcs = qc[qidx]
+        near = np.abs(qcs[:, None, 0] - ic[None, :, 0]) <= qext[:, None, 0] + iext[None, :, 0] + _SAT_EPS
+        for a in (1, 2):
+            near &= np.abs(qcs[:, None, a] - ic[None, :, a]) <= qext[:, None, a] + iext[None, :, a] + _SAT_EPS
+        a, m = np.nonzero(near)
+        if a.size == 0:
+            return 0
+        q = qidx[a]
+        over = obb_overlap(qc[q], qR[q], qh[q], ic[m], iR[m], ih[m])
+        q, m = q[over], m[over]
+        decided = np.zeros(len(q), dtype=bool)  # the pair collides for certain
+        narrow = np.ones(len(q), dtype=bool)  # the pair needs fcl
+        box = (ikind[m] == _EXACT_BOX) & exact_q[q]
+        decided |= box
+        narrow &= ~box
+        vox = np.flatnonzero(ikind[m] == _VOXELS)
+        if vox.size:
+            # Each voxel cube of the block against the query's box: exact for box queries; for a capsule's
+            # bounds a cube outside them is certainly free, so only blocks with a cube inside go to fcl.
+            counts = np.array([len(objects[k][2]) for k in m[vox]])
+            rows = np.repeat(vox, counts)
+            cubes = np.concatenate([objects[k][2] for k in m[vox]])
+            half = np.full(3, self.voxel_size_m / 2.0)
+            # World bounding boxes first (cheap), the separating axes on the cubes inside them.
+            qe = np.matmul(np.abs(qR[q[rows]]), qh[q[rows]][:, :, None])[:, :, 0]
+            d = np.abs(cubes - qc[q[rows]]) - qe - half
+            inside = (d[:, 0] <= _SAT_EPS) & (d[:, 1] <= _SAT_EPS) & (d[:, 2] <= _SAT_EPS)
+            rows, cubes = rows[inside], cubes[inside]
+            touch = obb_overlap(qc[q[rows]], qR[q[rows]], qh[q[rows]], cubes, np.eye(3), half)
+            any_touch = np.zeros(len(q), dtype=bool)
+            any_touch[rows[touch]] = True
+            ex = exact_q[q[vox]]
+            decided[vox] = any_touch[vox] & ex
+            narrow[vox] = any_touch[vox] & ~ex
+        dk = np.flatnonzero(decided)
+        if dk.size:
+            # The first item (in registration order) each owner certainly touches.
+            order = dk[np.lexsort((m[dk], owner[q[dk]]))]
+            own = owner[q[order]]
+            for k in order[np.r_[True, own[1:] != own[:-1]]]:
+                hits[owner[q[k]]] = label(objects[m[k]][1], q[k])
+            free[own] = False
+        calls = 0
+        todo = np.flatnonzero(narrow & ~decided & free[owner[q]])
+        # In query order, so that one placement's object is moved once for all its pairs.
+        for k in todo[np.argsort(q[todo], kind="stable")]:
+            o = owner[q[k]]
+            if hits[o] is not None:
+                continue
+            calls += 1
+            if fcl.collide(query_object(q[k]), objects[m[k]][0], self._nohit_request, fcl.CollisionResult()):
+                hits[o] = label(objects[m[k]][1], q[k])
+        return calls
+
+    def _item_arrays(self, target: bool):
+        if target:
+            c, R, h, kind = self._target_item
+            ext = np.abs(R) @ h
+            return (c[None], R[None], h[None], np.array([kind]), ext[None])
+        return (self._item_c, self._item_R, self._item_h, self._item_kind, self._item_ext)
+
     def boxes_first_hits(
         self,
         R: np.ndarray,
@@ -262,6 +432,9 @@ class CollisionScene:
     ) -> list[Hit | None]:
         """Which of N poses of a set of K boxes touch the scene (target optional per pose; support excluded).
 
+        Box against box and against voxels is decided by the separating-axis test in numpy (exact); a box
+        against a mesh by fcl, only where the box overlaps the mesh's oriented bounds.
+
         Args:
             R: (N, 3, 3) rotation of each pose (all K boxes share it).
             centres: (N, K, 3) box centres in `base` [m].
@@ -269,53 +442,47 @@ class CollisionScene:
             include_target: (N,) bool, check pose n against the target too; None: never.
 
         Returns:
-            N entries: the first `Hit` of any of the pose's boxes, or None when it is free.
+            N entries: the first `Hit` of any of the pose's boxes (obstacles before the target), or None
+            when it is free.
         """
-        n, _k = centres.shape[:2]
+        n, k = centres.shape[:2]
         hits: list[Hit | None] = [None] * n
         if n == 0:
             return hits
-        geom_owner: dict[int, int] = {}  # id(geometry) -> pose index
-        # Translation bytes -> pose index: lets the callback skip pairs of poses already known to collide
-        # without a narrowphase call. Only a shortcut: the verdict always comes from fcl's contact geometry.
-        # Several boxes may share a centre (a finger of a pose and the other finger of its flipped twin).
-        centre_owner: dict[bytes, list[int]] = {}
-        objects = []
-        for j, half in enumerate(halves):
-            pool = self._pool_objects((j, float(half[0]), float(half[1]), float(half[2])), n)
-            for i, (geom, obj) in enumerate(pool):
-                c = np.ascontiguousarray(centres[i, j], dtype=np.float64)
-                obj.setTransform(_transform(R[i], c))
-                geom_owner[id(geom)] = i
-                centre_owner.setdefault(c.tobytes(), []).append(i)
-                objects.append(obj)
-        query = fcl.DynamicAABBTreeCollisionManager()
-        query.registerObjects(objects)
-        query.setup()
+        H = np.asarray(halves, dtype=np.float64).reshape(k, 3)
+        qc = np.ascontiguousarray(centres, dtype=np.float64).reshape(-1, 3)
+        qR = np.repeat(np.asarray(R, dtype=np.float64), k, axis=0)
+        qh = np.tile(H, (n, 1))
+        owner = np.repeat(np.arange(n), k)
+        boxes = {}
 
-        def callback_for(allowed: np.ndarray | None):
-            def callback(o1, o2, _):
-                for o in (o1, o2):
-                    owners = centre_owner.get(o.getTranslation().tobytes())
-                    if owners is not None and all(hits[i] is not None for i in owners):
-                        return False
-                result = fcl.CollisionResult()
-                if fcl.collide(o1, o2, self._request, result):
-                    c = result.contacts[0]
-                    a, b = id(c.o1), id(c.o2)
-                    i = geom_owner.get(a, geom_owner.get(b))
-                    label = self._labels.get(b) or self._labels.get(a)
-                    if i is not None and hits[i] is None and label is not None:
-                        if allowed is None or allowed[i]:
-                            hits[i] = label
-                return False
+        def query_object(q: int) -> fcl.CollisionObject:
+            j = int(q % k)
+            obj = boxes.get(j)
+            if obj is None:
+                obj = boxes[j] = fcl.CollisionObject(fcl.Box(*(2.0 * H[j])), fcl.Transform())
+            obj.setTransform(_transform(qR[q], qc[q]))
+            return obj
 
-            return callback
+        def label(hit: Hit, _q: int) -> Hit:
+            return hit
 
-        if self.n_obstacle_objects:
-            query.collide(self.manager, None, callback_for(None))
+        items = self._item_arrays(False)
+        self._resolve(qc, qR, qh, owner, hits, True, query_object, label, items, self._items)
         if self.target_object is not None and include_target is not None and np.any(include_target):
-            query.collide(self.target_object, None, callback_for(np.asarray(include_target, dtype=bool)))
+            allowed = np.repeat(np.asarray(include_target, dtype=bool), k)
+            # Poses not checked against the target are masked by pretending they already hit (then reset).
+            masked = [i for i in range(n) if hits[i] is None and not include_target[i]]
+            for i in masked:
+                hits[i] = _MASK
+            sel = np.flatnonzero(allowed)
+            self._resolve(
+                qc[sel], qR[sel], qh[sel], owner[sel], hits, True,
+                lambda q: query_object(int(sel[q])), label, self._item_arrays(True),
+                [(self.target_object, Hit("target", self.target.name), None)],
+            )  # fmt: skip
+            for i in masked:
+                hits[i] = None
         return hits
 
     # ------------------------------------------------------------------------------------------------------
@@ -416,6 +583,107 @@ class CollisionScene:
                 if fcl.collide(obj, self.support_object, self._request, fcl.CollisionResult()):
                     return Hit("support", "support plane (gripper or held object)")
         return found[0] if found else None
+
+    def arm_hits_batch(
+        self,
+        robot,
+        Q: np.ndarray,
+        include_target: bool = True,
+        extra: Sequence[tuple[str, fcl.CollisionGeometry, np.ndarray, np.ndarray, str]] = (),
+    ) -> list[Hit | None]:
+        """`arm_hit` for N configurations at once: the first thing each configuration's link capsules (and
+        `extra` parts moving with the flange) touch, or None.
+
+        The link frames come from one batched forward kinematics; the support is checked analytically (every
+        capsule but the base links', and the extra parts), the rest through the numpy broadphase (each
+        capsule's bounding box against the scene items' oriented bounds, per voxel for observed points) and
+        fcl's narrowphase for the pairs left.
+
+        Args:
+            robot: the `RobotModel`.
+            Q: (N, 6) configurations [rad].
+            include_target: check against the target too.
+            extra: (name, fcl geometry (`fcl.Box` or `fcl.Cylinder`), T_flange_part (4, 4), half extents
+                (3,) of the part's box or its cylinder's (r, r, h/2) [m], "box" or "cylinder").
+
+        Returns:
+            N entries, a `Hit` (its name says which link or part) or None.
+        """
+        Q = np.asarray(Q, dtype=np.float64).reshape(-1, 6)
+        n = len(Q)
+        hits: list[Hit | None] = [None] * n
+        if n == 0:
+            return hits
+        caps = self._arm_capsules(robot)
+        frames = link_frames_batch(robot.spec, Q)
+        T = frames[:, [c[1] for c in caps]] @ np.stack([c[2] for c in caps])  # (N, C, 4, 4)
+        radius = np.array([c[3] for c in caps])
+        length = np.array([c[4] for c in caps])
+        parts = [(name, geom, np.asarray(Tp, dtype=np.float64), np.asarray(h, dtype=np.float64), shape)
+                 for name, geom, Tp, h, shape in extra]  # fmt: skip
+        Tx = frames[:, 7][:, None] @ np.stack([p[2] for p in parts]) if parts else np.zeros((n, 0, 4, 4))
+        if self.support is not None:
+            nrm, off = self.support.normal, self.support.offset_m
+            low = T[..., :3, 3] @ nrm + off - 0.5 * length * np.abs(T[..., :3, 2] @ nrm) - radius
+            low[:, [c[0] in _BASE_LINKS for c in caps]] = np.inf
+            for i in np.flatnonzero(np.any(low < 0.0, axis=1)):
+                name = caps[int(np.argmax(low[i] < 0.0))][0]
+                hits[i] = Hit("support", f"support plane (arm link {name})")
+            for j, (name, _, _, half, shape) in enumerate(parts):
+                dots = np.abs(np.einsum("nij,i->nj", Tx[:, j, :3, :3], nrm))  # (N, 3)
+                if shape == "box":
+                    reach = dots @ half
+                else:
+                    reach = dots[:, 2] * half[2] + half[0] * np.sqrt(np.maximum(0.0, 1.0 - dots[:, 2] ** 2))
+                low_x = Tx[:, j, :3, 3] @ nrm + off - reach
+                for i in np.flatnonzero(low_x < 0.0):
+                    if hits[i] is None:
+                        hits[i] = Hit("support", f"support plane ({name})")
+        C, X = len(caps), len(parts)
+        qc = np.concatenate([T[..., :3, 3], Tx[..., :3, 3]], axis=1).reshape(-1, 3)
+        qR = np.concatenate([T[..., :3, :3], Tx[..., :3, :3]], axis=1).reshape(-1, 3, 3)
+        cap_half = np.column_stack([radius, radius, 0.5 * length + radius])
+        part_half = np.array([p[3] for p in parts]).reshape(-1, 3)
+        qh = np.tile(np.vstack([cap_half, part_half]), (n, 1))
+        exact = np.tile(np.array([False] * C + [p[4] == "box" for p in parts]), n)
+        owner = np.repeat(np.arange(n), C + X)
+        movers: dict[int, fcl.CollisionObject] = {}
+
+        def query_object(q: int) -> fcl.CollisionObject:
+            k = int(q % (C + X))
+            obj = movers.get(k)
+            if obj is None:
+                if k < C:
+                    obj = self.arm_object(robot, k)
+                else:
+                    obj = movers[k] = fcl.CollisionObject(parts[k - C][1], fcl.Transform())
+            obj.setTransform(_transform(qR[q], qc[q]))
+            return obj
+
+        def label(hit: Hit, q: int) -> Hit:
+            k = int(q % (C + X))
+            where = f"arm link {caps[k][0]}" if k < C else parts[k - C][0]
+            return Hit(hit.kind, f"{hit.name} ({where})")
+
+        items = self._item_arrays(False)
+        self._resolve(qc, qR, qh, owner, hits, exact, query_object, label, items, self._items)
+        if include_target and self.target_object is not None:
+            self._resolve(
+                qc, qR, qh, owner, hits, exact, query_object, label, self._item_arrays(True),
+                [(self.target_object, Hit("target", self.target.name), None)],
+            )  # fmt: skip
+        return hits
+
+    def arm_object(self, robot, k: int) -> fcl.CollisionObject:
+        """The fcl object of the robot's k-th link capsule (created once, moved by its users)."""
+        entry = self._capsules.get((id(robot), k))
+        if entry is None:
+            _, _, _, radius, length = self._arm_capsules(robot)[k]
+            geom = fcl.Capsule(radius, max(length, 1e-9))
+            entry = (geom, fcl.CollisionObject(geom, fcl.Transform()))
+            self._capsules[(id(robot), k)] = entry
+            self._labels[id(geom)] = Hit("arm", self._arm_capsules(robot)[k][0])
+        return entry[1]
 
 
 def _segment_distance(P: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:

@@ -28,14 +28,16 @@ rim). Quality: 0.5 top-down, 0.4 offset from the centre of mass (the moment on t
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import overload
 
 import numpy as np
 
 from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry
 from prompose_grasp.grasp.types import GraspConfig, ObjectModel, Plane
 
-__all__ = ["Candidates", "antipodal_grasps", "box_grasps", "family_regions", "suction_grasps"]
+__all__ = ["Candidates", "Reasons", "antipodal_grasps", "box_grasps", "family_regions", "suction_grasps"]
 
 _AXES = "xyz"
 
@@ -60,6 +62,69 @@ def family_regions(family: str) -> tuple[str, ...]:
     return FAMILY_REGIONS.get(family, ())
 
 
+class Reasons(Sequence[str]):
+    """The reasons of a batch of candidates, formatted when read.
+
+    Hundreds of candidates are generated and a handful returned, so each generator stores a format function
+    and one argument per row (its own row index) instead of formatting every text; `take` and `concat`
+    follow the rows. Reads like a list of strings (`len`, indexing, iteration, `==` with a list).
+    """
+
+    __slots__ = ("_arg", "_fns", "_which")
+
+    def __init__(self, fns: Sequence[Callable[[int], str]], which: np.ndarray, arg: np.ndarray):
+        self._fns = list(fns)
+        self._which = np.asarray(which, dtype=np.int64)
+        self._arg = np.asarray(arg, dtype=np.int64)
+
+    @classmethod
+    def of(cls, texts: Sequence[str] | Reasons) -> Reasons:
+        """`Reasons` of a list of ready strings (or the same `Reasons`)."""
+        if isinstance(texts, Reasons):
+            return texts
+        texts = list(texts)
+        return cls([texts.__getitem__], np.zeros(len(texts)), np.arange(len(texts)))
+
+    @classmethod
+    def lazy(cls, fn: Callable[[int], str], n: int) -> Reasons:
+        """n reasons, row r's text being fn(r)."""
+        return cls([fn], np.zeros(n), np.arange(n))
+
+    def __len__(self) -> int:
+        return len(self._arg)
+
+    @overload
+    def __getitem__(self, i: int) -> str: ...
+
+    @overload
+    def __getitem__(self, i: slice) -> list[str]: ...
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self)))]
+        return self._fns[int(self._which[i])](int(self._arg[i]))
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, (Reasons, list, tuple)):
+            return len(self) == len(other) and all(a == b for a, b in zip(self, other))
+        return NotImplemented
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def take(self, idx: np.ndarray) -> Reasons:
+        return Reasons(self._fns, self._which[idx], self._arg[idx])
+
+    @classmethod
+    def concat(cls, parts: Sequence[Reasons]) -> Reasons:
+        fns: list[Callable[[int], str]] = []
+        which, arg = [], []
+        for p in parts:
+            which.append(p._which + len(fns))
+            arg.append(p._arg)
+            fns += p._fns
+        return cls(fns, np.concatenate(which or [np.zeros(0)]), np.concatenate(arg or [np.zeros(0)]))
+
+
 @dataclass
 class Candidates:
     """A batch of grasp candidates (rows), in `base`.
@@ -71,7 +136,7 @@ class Candidates:
         contacts: (N, 2, 3) contact points [m] (suction: the cup centre twice).
         quality: (N,) in [0, 1].
         method: (N,) "box" / "antipodal" / "suction".
-        reason: N strings.
+        reason: N strings (a `Reasons`: formatted when read).
         check_target: (N,) bool: collide the gripper with the target too (mesh grasps: the fingers may meet
             the mesh elsewhere; box grasps keep clear of the box by construction).
         pre_rejected: (N,) "" or the reason a generator already knows the candidate fails ("stroke", ...).
@@ -83,7 +148,7 @@ class Candidates:
     contacts: np.ndarray
     quality: np.ndarray
     method: np.ndarray
-    reason: list[str] = field(default_factory=list)
+    reason: Sequence[str] = field(default_factory=list)
     check_target: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     pre_rejected: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=object))
 
@@ -116,7 +181,7 @@ class Candidates:
             np.concatenate([p.contacts for p in parts]),
             np.concatenate([p.quality for p in parts]),
             np.concatenate([p.method for p in parts]),
-            [r for p in parts for r in p.reason],
+            Reasons.concat([Reasons.of(p.reason) for p in parts]),
             np.concatenate([p.check_target for p in parts]),
             np.concatenate([p.pre_rejected for p in parts]),
         )
@@ -130,7 +195,7 @@ class Candidates:
             self.contacts[idx],
             self.quality[idx],
             self.method[idx],
-            [self.reason[i] for i in idx],
+            Reasons.of(self.reason).take(idx),
             self.check_target[idx],
             self.pre_rejected[idx],
         )
@@ -237,16 +302,17 @@ def box_grasps(
     too_wide = width + 2.0 * config.min_clearance_m > gripper.stroke_m
     opening = np.minimum(width + 2.0 * config.clearance_m, gripper.stroke_m)
     contacts = np.stack([p - yy * width[:, None] / 2.0, p + yy * width[:, None] / 2.0], axis=1)
-    reasons = []
-    for r in range(m):
+
+    def box_reason(row: int) -> str:
+        r = row // 2  # both flips share the text
         k = ci[r]
-        text = (
+        return (
             f"box: close along obj {_AXES[I[k]]} ({width[r] * 1e3:.0f} mm, stroke "
-            f"{gripper.stroke_m * 1e3:.0f} "
-            f"mm), approach {'-' if S[k] > 0 else '+'}obj {_AXES[J[k]]} tilted {TILT[k]:+.0f} deg, "
+            f"{gripper.stroke_m * 1e3:.0f} mm, open to {opening[r] * 1e3:.0f} mm), approach "
+            f"{'-' if S[k] > 0 else '+'}obj {_AXES[J[k]]} tilted {TILT[k]:+.0f} deg, "
             f"{depth[r] * 1e3:.0f} mm deep, {off[r] * 1e3:.0f} mm from the centre of mass"
         )
-        reasons += [text, text]
+
     return Candidates(
         _T(Rf, p[rep]),
         opening[rep],
@@ -254,7 +320,7 @@ def box_grasps(
         contacts[rep],
         np.clip(q[rep], 0.0, 1.0),
         np.full(2 * m, "box", dtype=object),
-        reasons,
+        Reasons.lazy(box_reason, 2 * m),
         np.zeros(2 * m, dtype=bool),
         np.where(too_wide[rep], "stroke", "").astype(object),
     )
@@ -317,9 +383,23 @@ def antipodal_grasps(
             else idx
         )
         P, normals = P[idx], normals[idx]
-    n = len(P)
     cos_cone = math.cos(math.atan(config.friction_coefficient))
-    i1, i2 = np.triu_indices(n, k=1)
+    max_dist = gripper.stroke_m - 2.0 * config.min_clearance_m
+    # All pairs at once as n x n matrices (BLAS): with X = P - mean, |p_j - p_i|^2 and n_i . (p_j - p_i) are
+    # entries of X X^T and N X^T. A loose pass (slack far above the rounding of these sums) keeps a superset
+    # of the pairs; the exact tests below run on the survivors only.
+    X = P - P.mean(axis=0)
+    sq = np.einsum("ij,ij->i", X, X)
+    G = X @ X.T
+    D2 = np.maximum(sq[:, None] + sq[None, :] - 2.0 * G, 0.0)
+    NX = normals @ X.T  # NX[i, j] = n_i . x_j
+    nx = np.einsum("ij,ij->i", normals, X)  # n_i . x_i
+    slack = 1e-9
+    dist_m = np.sqrt(D2)
+    loose = (dist_m > 1e-3 - slack) & (dist_m <= max_dist + slack)
+    loose &= -(NX - nx[:, None]) >= cos_cone * dist_m - slack  # the pad at p_i pushes along +u, into it
+    loose &= (nx[None, :] - NX.T) >= cos_cone * dist_m - slack  # n_j . (p_j - p_i)
+    i1, i2 = np.nonzero(np.triu(loose, k=1))
     d = P[i2] - P[i1]
     dist = np.linalg.norm(d, axis=1)
     ok = (dist > 1e-3) & (dist + 2.0 * config.min_clearance_m <= gripper.stroke_m)
@@ -369,24 +449,28 @@ def antipodal_grasps(
     contacts = np.broadcast_to(contacts[:, None, None], (K, M, 2, 2, 3)).reshape(-1, 2, 3)
     used = np.degrees(np.arccos(np.clip(np.minimum(c1[keep], c2[keep]), -1.0, 1.0)))
     cone_deg = math.degrees(math.atan(config.friction_coefficient))
-    reasons = []
-    for k, idx in enumerate(keep):
-        for rot_deg in config.antipodal_approaches_deg:
-            text = (
-                f"antipodal ({target.family or 'mesh'} {label[idx]}): width {dist[idx] * 1e3:.0f} mm, "
-                f"friction-cone margin {used[k]:.0f} of {cone_deg:.0f} deg used, approach {rot_deg:+.0f} deg "
-                f"from top-down, {off[idx] * 1e3:.0f} mm from the centre of mass"
-            )
-            reasons += [text, text]
+    rots = tuple(config.antipodal_approaches_deg)
+    opening = np.minimum(width + 2.0 * config.clearance_m, gripper.stroke_m)
+
+    def antipodal_reason(row: int) -> str:
+        k, rot = divmod(row // 2, M)  # rows: pair k x approach rot x flip
+        idx = keep[k]
+        return (
+            f"antipodal ({target.family or 'mesh'} {label[idx]}): width {dist[idx] * 1e3:.0f} mm, "
+            f"open to {opening[row] * 1e3:.0f} mm, friction-cone margin {used[k]:.0f} of {cone_deg:.0f} "
+            f"deg used, approach {rots[rot]:+.0f} deg from top-down, {off[idx] * 1e3:.0f} mm from the centre "
+            "of mass"
+        )
+
     m = len(p)
     return Candidates(
         _T(R, p),
-        np.minimum(width + 2.0 * config.clearance_m, gripper.stroke_m),
+        opening,
         width.copy(),
         contacts.copy(),
         np.clip(q, 0.0, 1.0),
         np.full(m, "antipodal", dtype=object),
-        reasons,
+        Reasons.lazy(antipodal_reason, m),
         np.ones(m, dtype=bool),
         np.full(m, "", dtype=object),
     )
@@ -442,7 +526,11 @@ def suction_grasps(
         samples, normals = np.asarray(pts), np.asarray(target.mesh.face_normals)[fidx]
         # Mean spacing of the samples, doubled: a flat region covered by the samples has a sample this close.
         spacing = 2.0 * math.sqrt(float(target.mesh.area) / n_samples)
-    rows_T, rows_c, rows_q, reasons, pre = [], [], [], [], []
+    rows_R: list[np.ndarray] = []
+    rows_p: list[np.ndarray] = []
+    rows_q: list[np.ndarray] = []
+    pre: list[np.ndarray] = []
+    faces: list[tuple[str, float, np.ndarray, int]] = []  # (face, tilt [deg], lateral offsets (G,), G)
     for m in range(3):
         others = [x for x in range(3) if x != m]
         for s in (1.0, -1.0):
@@ -485,36 +573,44 @@ def suction_grasps(
                 limit = cup.max_payload_kg(config.suction_safety_factor, lateral_g=1.0 if sideways else 0.0)
                 if target.mass_kg > limit:
                     payload = "payload"
-            mass = "mass unknown" if target.mass_kg is None else f"{target.mass_kg:.2f} kg"
             tilt = math.degrees(math.acos(float(np.clip(-a @ up, -1, 1))))
             x0 = R[:, others[0]]
-            for yaw in (0.0, 0.5 * math.pi, math.pi, 1.5 * math.pi):
-                x = math.cos(yaw) * x0 + math.sin(yaw) * cross(a, x0)
-                Rt = np.stack([x, cross(a, x), a], axis=1)
-                for g_ in range(len(pts)):
-                    T = np.eye(4)
-                    T[:3, :3], T[:3, 3] = Rt, pts[g_]
-                    rows_T.append(T)
-                    rows_c.append([pts[g_], pts[g_]])
-                    rows_q.append(q[g_])
-                    pre.append(payload or ("" if flat_ok[g_] else "suction_not_flat"))
-                    reasons.append(
-                        f"suction: obj {'+' if s > 0 else '-'}{_AXES[m]} face, "
-                        f"{lateral[g_] * 1e3:.0f} mm from "
-                        f"the centre of mass, approach {tilt:.0f} deg from top-down, {mass} "
-                        f"(holds {cup.max_force_n:.0f} N)"
-                    )
-    n = len(rows_T)
+            yaws = np.array([0.0, 0.5 * math.pi, math.pi, 1.5 * math.pi])
+            x = np.cos(yaws)[:, None] * x0 + np.sin(yaws)[:, None] * cross(a, x0)  # (4, 3)
+            Rt = np.stack([x, cross(np.broadcast_to(a, x.shape), x), np.broadcast_to(a, x.shape)], axis=2)
+            G = len(pts)
+            rows_R.append(np.repeat(Rt, G, axis=0))  # rows: yaw-major, then grid point
+            rows_p.append(np.tile(pts, (4, 1)))
+            rows_q.append(np.tile(q, 4))
+            status = np.where(flat_ok, "", "suction_not_flat").astype(object)
+            if payload:
+                status[:] = payload
+            pre.append(np.tile(status, 4))
+            faces.append((f"{'+' if s > 0 else '-'}{_AXES[m]}", tilt, lateral, G))
+    n = sum(len(r) for r in rows_R)
     if n == 0:
         return Candidates.empty()
+    mass = "mass unknown" if target.mass_kg is None else f"{target.mass_kg:.2f} kg"
+    starts = np.cumsum([0] + [4 * f[3] for f in faces])
+
+    def suction_reason(row: int) -> str:
+        k = int(np.searchsorted(starts, row, side="right")) - 1
+        face, tilt, lateral, G = faces[k]
+        g = (row - int(starts[k])) % G
+        return (
+            f"suction: obj {face} face, {lateral[g] * 1e3:.0f} mm from the centre of mass, approach "
+            f"{tilt:.0f} deg from top-down, {mass} (holds {cup.max_force_n:.0f} N)"
+        )
+
+    p_all = np.concatenate(rows_p)
     return Candidates(
-        np.array(rows_T),
+        _T(np.concatenate(rows_R), p_all),
         np.zeros(n),
         np.zeros(n),
-        np.array(rows_c),
-        np.clip(np.array(rows_q), 0.0, 1.0),
+        np.stack([p_all, p_all], axis=1),
+        np.clip(np.concatenate(rows_q), 0.0, 1.0),
         np.full(n, "suction", dtype=object),
-        reasons,
+        Reasons.lazy(suction_reason, n),
         np.zeros(n, dtype=bool),
-        np.array(pre, dtype=object),
+        np.concatenate(pre),
     )

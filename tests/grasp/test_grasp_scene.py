@@ -97,3 +97,77 @@ def test_voxels_cover_their_points_and_plane_from_camera_round_trip():
     x_cam = rng.normal(size=(20, 3))
     x_base = x_cam @ T_base_cam[:3, :3].T + T_base_cam[:3, 3]
     np.testing.assert_allclose(plane.height(x_base), x_cam @ n_cam + 0.8, atol=1e-12)  # same heights
+
+
+def _clutter(rng):
+    """Box obstacles, a mesh obstacle, a fixture, observed points (voxels), a mesh target and the table."""
+    import trimesh
+
+    table = Plane.horizontal(0.0)
+    boxes = [
+        ObjectModel(f"o{i}", Pose9D(random_rotation(rng), rng.uniform([-0.7, -0.3, 0.05], [-0.3, 0.3, 0.3]),
+                                    rng.uniform(0.03, 0.12, 3)))
+        for i in range(4)
+    ]  # fmt: skip
+    mesh = trimesh.creation.cylinder(radius=0.04, height=0.12, sections=24)
+    mesh.apply_translation([-0.45, 0.2, 0.06])
+    mug = ObjectModel("cyl", Pose9D(np.eye(3), [-0.45, 0.2, 0.06], [0.08, 0.08, 0.12]), mesh=mesh)
+    wall = ObjectModel("wall", Pose9D(np.eye(3), [-0.5, -0.35, 0.15], [0.4, 0.01, 0.3]), kind="fixture")
+    target_mesh = trimesh.creation.icosphere(subdivisions=2, radius=0.04)
+    target_mesh.apply_translation([-0.5, 0.0, 0.04])
+    target = ObjectModel("ball", Pose9D(np.eye(3), [-0.5, 0.0, 0.04], [0.08, 0.08, 0.08]), mesh=target_mesh)
+    points = rng.uniform([-0.35, -0.15, 0.0], [-0.25, 0.0, 0.15], (800, 3))  # an unmodelled block
+    return CollisionScene([*boxes, mug, wall], table, points, target), [*boxes, mug, wall]
+
+
+def _fcl_first(scene, objects, include_target) -> bool:
+    """Independent answer: every query object against every scene fcl object, pairwise (no broadphase)."""
+    request = fcl.CollisionRequest()
+    others = [o for o, _, _ in scene._items] + ([scene.target_object] if include_target else [])
+    return any(fcl.collide(a, b, request, fcl.CollisionResult()) for a in objects for b in others)
+
+
+def test_batched_boxes_against_meshes_voxels_and_target_agree_with_pairwise_fcl():
+    rng = np.random.default_rng(4)
+    scene, _ = _clutter(rng)
+    assert len(scene.voxel_centres) > 0
+    n = 400
+    R = np.stack([random_rotation(rng) for _ in range(n)])
+    halves = [(0.01, 0.04, 0.02), (0.005, 0.01, 0.03)]
+    centres = rng.uniform([-0.75, -0.4, 0.0], [-0.2, 0.35, 0.3], (n, 1, 3)) + np.array(
+        [[0.0, 0.0, 0.0], [0.0, 0.03, 0.0]]
+    )
+    include_target = rng.uniform(size=n) < 0.5
+    hits = scene.boxes_first_hits(R, centres, halves, include_target)
+    kinds = set()
+    for i in range(n):
+        objs = [
+            fcl.CollisionObject(fcl.Box(*(2 * np.array(h))), fcl.Transform(R[i], centres[i, k]))
+            for k, h in enumerate(halves)
+        ]
+        assert (hits[i] is not None) == _fcl_first(scene, objs, include_target[i]), i
+        if hits[i] is not None:
+            kinds.add(hits[i].kind)
+    assert kinds == {"object", "fixture", "points", "target"}  # every kind of item was exercised
+
+
+def test_batched_arm_check_agrees_with_the_single_one():
+    from prompose_grasp.robot import load_robot
+
+    rng = np.random.default_rng(8)
+    scene, _ = _clutter(rng)
+    robot = load_robot("ur5e")
+    Q = robot.random_configurations(rng, 150)
+    box = fcl.Box(0.04, 0.09, 0.06)
+    T_flange_part = make_T(np.eye(3), [0.0, 0.0, 0.1])
+    extra = [("gripper box", box, T_flange_part, np.array([0.02, 0.045, 0.03]), "box")]
+    batch = scene.arm_hits_batch(robot, Q, extra=extra)
+    single_obj = fcl.CollisionObject(box, fcl.Transform())
+    n_hit = 0
+    for q, hit in zip(Q, batch):
+        T = robot.fk(q) @ T_flange_part
+        single_obj.setTransform(fcl.Transform(T[:3, :3], T[:3, 3]))
+        single = scene.arm_hit(robot, q, extra=[("gripper box", single_obj)])
+        assert (hit is None) == (single is None), (q, hit, single)
+        n_hit += hit is not None
+    assert 0 < n_hit < len(Q)  # both verdicts occur
