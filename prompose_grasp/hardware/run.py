@@ -34,9 +34,9 @@ from prompose_grasp.hardware.cameras import (
     RealSenseCamera,
     RecordedSequenceCamera,
 )
-from prompose_grasp.hardware.robotiq import RobotiqGripper
+from prompose_grasp.hardware.robotiq import ROBOTIQ_PORT, RobotiqGripper
 from prompose_grasp.hardware.suction import IOSuctionGripper
-from prompose_grasp.hardware.ur_rtde import URRtdeArm, URRtdeConfig, URRtdeLinks
+from prompose_grasp.hardware.ur_rtde import RtdeLinks, URRtdeArm, URRtdeConfig, URRtdeLinks
 from prompose_grasp.pipeline.outcome import PickOutcome, ProgressEvent
 from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
 from prompose_grasp.robot.fake import HOME_Q, FakeArm
@@ -282,6 +282,8 @@ def run_command(
     on_event: Callable[[ProgressEvent], None] | None = None,
     q_start: ArrayLike | None = None,
     robot_model: RobotModel | None = None,
+    links: RtdeLinks | None = None,
+    robotiq_port: int = ROBOTIQ_PORT,
 ) -> RunResult:
     """Run `command` on the cell of `spec` (or dry-run it); returns the outcome and the moves in order.
 
@@ -290,6 +292,8 @@ def run_command(
         config: `PickConfig` (a dry run turns `reobserve` off).
         q_start: dry run only: start here instead of reading the arm (or `HOME_Q` without a host).
         robot_model: override the model built from `spec.robot` and the gripper's TCP.
+        links: the RTDE link factory (default: the real ur_rtde, `URRtdeLinks`).
+        robotiq_port: the Robotiq URCap's port on the controller.
     """
     from prompose_grasp.perception.estimator import ProMPose
 
@@ -302,15 +306,17 @@ def run_command(
     if spec.dry_run:
         config = replace(config, reobserve=False)
         if q_start is None:
-            q_start = _current_q(spec.host) if spec.host else HOME_Q
+            q_start = _current_q(spec.host, links) if spec.host else HOME_Q
         inner_arm: Arm = FakeArm(robot, q_initial=q_start)
         max_w = float(getattr(geometry, "stroke_m", 0.0))
         inner_gripper: Gripper = DryRunGripper(kind, max_w, held_width_m=0.5 * max_w)
     else:
         assert spec.host is not None
-        ur = URRtdeArm(spec.host, robot, config=URRtdeConfig(use_io=kind == "suction"))
+        ur = URRtdeArm(spec.host, robot, config=URRtdeConfig(use_io=kind == "suction"), links=links)
         inner_arm = ur
-        inner_gripper = RobotiqGripper(spec.host) if kind == "parallel_jaw" else IOSuctionGripper(ur)
+        inner_gripper = (
+            RobotiqGripper(spec.host, robotiq_port) if kind == "parallel_jaw" else IOSuctionGripper(ur)
+        )
     arm = RecordingArm(inner_arm, log)
     gripper = RecordingGripper(inner_gripper, log)
     camera = CalibratedCamera(

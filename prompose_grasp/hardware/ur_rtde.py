@@ -343,16 +343,17 @@ class URRtdeArm(Arm):
                 "reconnect()"
             )
 
-    def _lost(self, what: str) -> None:
+    def _lost(self, what: str, cause: BaseException | None = None) -> None:
         """Connection-loss path: stop where the control link still answers, mark disconnected, raise."""
-        logger.error("%s: link to the UR controller at %s lost; stopping", what, self.host)
+        logger.error("%s: link to the UR controller at %s lost (%s); stopping", what, self.host, cause)
         self._send_stop()
         self._connected = False
+        detail = f" ({cause})" if cause is not None else ""
         raise ConnectionLostError(
-            f"{what}: the link to the UR controller at {self.host} was lost; a stop was sent where the "
-            "control link still answered (the controller also ends its script when its RTDE client goes). "
-            "Check the arm, then reconnect()"
-        )
+            f"{what}: the link to the UR controller at {self.host} was lost{detail}; a stop was sent where "
+            "the control link still answered (the controller also ends its script when its RTDE client "
+            "goes). Check the arm, then reconnect()"
+        ) from cause
 
     def _send_stop(self) -> None:
         motion, self._motion = self._motion, None
@@ -432,10 +433,8 @@ class URRtdeArm(Arm):
         self._motion = motion
         try:
             accepted = send()
-        except RuntimeError:
-            if not self._link_ok():
-                self._lost(what)
-            raise
+        except RuntimeError as exc:  # ur_rtde raises when its link or the control script is gone
+            self._lost(what, exc)
         if not accepted:
             self._motion = None
             self._check(what)  # a safety stop or a lost link explains a refusal
@@ -446,8 +445,8 @@ class URRtdeArm(Arm):
                 return
             try:
                 running = self._control.getAsyncOperationProgress() >= 0
-            except RuntimeError:
-                self._lost(what)
+            except RuntimeError as exc:
+                self._lost(what, exc)
             self._check(what)
             if not running:
                 self._motion = None
@@ -484,8 +483,8 @@ class URRtdeArm(Arm):
             t_cycle = self._control.initPeriod()
             try:
                 ok = self._control.servoJ(q.tolist(), 0.0, 0.0, dt, c.lookahead_s, c.gain)
-            except RuntimeError:
-                self._lost("follow")
+            except RuntimeError as exc:
+                self._lost("follow", exc)
             if not ok:
                 self._check("follow")
                 self._send_stop()

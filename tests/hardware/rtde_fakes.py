@@ -22,6 +22,8 @@ class FakeControl:
         self.moving_polls = moving_polls
         self.connected = True
         self._polls_left = 0
+        #: a `FakeReceive` that takes each move's target as the arm's new state (None: the state stays)
+        self.receive: FakeReceive | None = None
         #: name -> callable run before answering (may raise RuntimeError, flip flags, ...)
         self.hooks: dict[str, Callable[[], Any]] = {}
 
@@ -37,11 +39,15 @@ class FakeControl:
     def moveJ(self, q, speed, acceleration, asynchronous=False):
         self._call("moveJ", list(q), speed, acceleration, asynchronous)
         self._polls_left = self.moving_polls
+        if self.receive is not None:
+            self.receive.q = list(q)
         return True
 
     def moveL(self, pose, speed, acceleration, asynchronous=False):
         self._call("moveL", list(pose), speed, acceleration, asynchronous)
         self._polls_left = self.moving_polls
+        if self.receive is not None:
+            self.receive.tcp_pose = list(pose)
         return True
 
     def getAsyncOperationProgress(self):

@@ -17,10 +17,15 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from robotiq_loopback import RobotiqLoopback
+from rtde_fakes import CallLog, FakeControl, FakeLinks, FakeReceive
 
 from prompose_grasp.cli import main
 from prompose_grasp.errors import InvalidInputError, UnknownNameError
-from prompose_grasp.hardware import CellSpec, write_intrinsics
+from prompose_grasp.geometry.se3 import T_from_pose_vector, pose_vector_from_T
+from prompose_grasp.hardware import CellSpec, run_command, write_intrinsics
+from prompose_grasp.pipeline import PickConfig
+from prompose_grasp.robot import HOME_Q, load_robot
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -47,10 +52,21 @@ def recording(tmp_path_factory):
     return seq, calibration, oracle_bottle_base
 
 
+@pytest.fixture(scope="module")
+def estimator():
+    """One embedded estimator for both pipeline runs (loading it is most of their time)."""
+    from prompose_grasp.perception.estimator import ProMPose
+
+    return ProMPose.default()
+
+
 @pytest.mark.sim
 @pytest.mark.slow
-def test_dry_run_completes_a_planned_pick_and_sends_nothing(recording, tmp_path, capsys, monkeypatch):
+def test_dry_run_completes_a_planned_pick_and_sends_nothing(
+    recording, estimator, tmp_path, capsys, monkeypatch
+):
     seq, calibration, oracle_bottle_base = recording
+    monkeypatch.setattr("prompose_grasp.perception.estimator.ProMPose.default", lambda *a, **k: estimator)
 
     def no_hardware(*args, **kwargs):
         raise AssertionError("a dry run must not open a device")
@@ -78,6 +94,44 @@ def test_dry_run_completes_a_planned_pick_and_sends_nothing(recording, tmp_path,
     np.testing.assert_allclose(approach, T_grasp[:3, 3], atol=1e-9)  # the grasp pose is what was sent
     # The lift raises the object by at least what the pipeline counts as picked (moved_min_m = 5 cm).
     assert lift[2] - approach[2] >= 0.05
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_real_path_sends_the_validated_moves_to_the_control_link(recording, estimator):
+    """Without --dry-run: the same pick through URRtdeArm (control link replaced at our boundary, see
+    rtde_fakes) and RobotiqGripper (on the loopback URCap server): what goes on the wire is exactly the
+    validated commands, in order, and the run ends by stopping the controller script."""
+    seq, calibration, _ = recording
+    log = CallLog()
+    control = FakeControl(log, moving_polls=1)
+    robot = load_robot("ur5e", tcp_offset=[0.0, 0.0, 0.145])
+    control.receive = FakeReceive(HOME_Q, pose_vector_from_T(robot.fk_tcp(HOME_Q)))
+    links = FakeLinks(control, control.receive)
+    gripper_server = RobotiqLoopback(object_position=150)  # the jaws stop on something 35 mm wide
+    try:
+        spec = CellSpec("ur5e", "127.0.0.1", "robotiq", str(seq), calibration)
+        result = run_command(
+            spec,
+            "pick up the green bottle",
+            estimator=estimator,
+            config=PickConfig(reobserve=False),  # a recording cannot show the lifted bottle
+            links=links,
+            robotiq_port=gripper_server.port,
+        )
+    finally:
+        gripper_server.close()
+    assert result.outcome.success and not result.dry_run
+    wire = [(name, args) for name, args in log if name in ("moveJ", "moveL", "servoJ")]
+    assert [name for name, _ in wire] == ["moveJ", "moveL", "moveL"]
+    sent = result.arm_commands
+    assert wire[0][1][0] == sent[0].q.tolist()  # the validated joint target, unchanged
+    for (_, args), command in zip(wire[1:], sent[1:]):
+        # The validated TCP pose as a UR pose vector (rotation-vector round trip: float64 rounding).
+        np.testing.assert_allclose(T_from_pose_vector(args[0]), command.T_base_tcp, atol=1e-12)
+        assert args[1:] == (command.speed_m_s, command.accel_m_s2, True)
+    assert log.names()[0] == "setTcp" and log.names()[-2:] == ["stopScript", "disconnect"]
+    assert "SET POS 255" in gripper_server.log  # closed on the bottle
 
 
 def test_cell_spec_checks_its_choices(tmp_path):
