@@ -308,7 +308,8 @@ class RecordedSequenceCamera(RGBDCamera):
                     f"(and depth_scale_m), or pass intrinsics=(fx, fy, cx, cy); missing {missing}"
                 )
             intrinsics = (spec["fx"], spec["fy"], spec["cx"], spec["cy"])
-        self.fx_fy_cx_cy = tuple(float(v) for v in intrinsics)
+        fx, fy, cx, cy = (float(v) for v in intrinsics)
+        self.fx_fy_cx_cy = (fx, fy, cx, cy)
         self.depth_scale_m = float(
             depth_scale_m if depth_scale_m is not None else spec.get("depth_scale_m", 0.001)
         )

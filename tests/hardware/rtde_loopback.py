@@ -195,7 +195,9 @@ class _RtdeSession:
                 elif ptype == RTDE_GET_URCONTROL_VERSION:
                     self.send(ptype, struct.pack(">IIII", *self.version))
                 elif ptype == RTDE_CONTROL_PACKAGE_SETUP_OUTPUTS:
-                    (self.frequency_hz,) = struct.unpack(">d", payload[:8])
+                    (frequency_hz,) = struct.unpack(">d", payload[:8])
+                    # the controller clamps the rate to its own (125 Hz on CB3, 500 on e-Series)
+                    self.frequency_hz = min(frequency_hz, 500.0) if frequency_hz > 0 else 500.0
                     # clients may end the list with a comma; the controller ignores the empty name
                     names = [n for n in payload[8:].decode().split(",") if n]
                     types = [OUTPUT_TYPES.get(n, "NOT_FOUND") for n in names]

@@ -10,7 +10,6 @@ calibration file. The scene's ground truth (named `oracle_*`) is used only to ch
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import cv2
@@ -26,8 +25,6 @@ from prompose_grasp.geometry.se3 import T_from_pose_vector, pose_vector_from_T
 from prompose_grasp.hardware import CellSpec, run_command, write_intrinsics
 from prompose_grasp.pipeline import PickConfig
 from prompose_grasp.robot import HOME_Q, load_robot
-
-os.environ.setdefault("MUJOCO_GL", "egl")
 
 SCENE = Path(__file__).resolve().parents[2] / "sim" / "scenes" / "tabletop_household.yaml"
 

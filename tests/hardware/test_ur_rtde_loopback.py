@@ -80,6 +80,7 @@ def server(request):
         "actual_TCP_pose": pose_vector_from_T(ROBOT.fk_tcp(Q)).tolist(),
         "safety_status_bits": 1,  # normal mode
         "robot_mode": 7,  # running
+        "actual_digital_input_bits": 1 << 3,  # a vacuum switch on input 3
     }
     state.update(getattr(request, "param", {}))
     drop = state.pop("drop_after_s", None)
@@ -105,6 +106,7 @@ def test_real_receive_interface_reads_joints_and_tcp_pose(server):
         assert _wait_for(lambda: receive.getActualQ() == Q.tolist())
         assert receive.getActualTCPPose() == pose_vector_from_T(ROBOT.fk_tcp(Q)).tolist()
         assert not receive.isProtectiveStopped() and not receive.isEmergencyStopped()
+        assert receive.getDigitalInState(3) and not receive.getDigitalInState(2)
     finally:
         receive.disconnect()
 
@@ -175,3 +177,10 @@ def test_receive_recipe_is_what_the_arm_reads():
     assert {"actual_q", "actual_TCP_pose", "safety_status_bits", "actual_digital_input_bits"} <= set(
         RECEIVE_VARIABLES
     )
+
+
+def test_dry_run_reads_the_start_joints_over_a_receive_only_link(server):
+    from prompose_grasp.hardware.run import _current_q
+
+    # The default links (controller-rate recipe), receive only: a dry run opens no control link.
+    np.testing.assert_array_equal(_current_q(server.host), Q)
