@@ -23,6 +23,7 @@ from prompose_grasp.hardware.errors import (
     ConnectionLostError,
     EmergencyStopError,
     GripperError,
+    MotionFailedError,
     ProtectiveStopError,
     SafetyStopError,
 )
@@ -45,6 +46,7 @@ __all__ = [
     "GripperError",
     "HandEyeCalibration",
     "IOSuctionGripper",
+    "MotionFailedError",
     "ProtectiveStopError",
     "RealSenseCamera",
     "RecordedSequenceCamera",

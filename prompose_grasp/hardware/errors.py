@@ -9,6 +9,7 @@ __all__ = [
     "ConnectionLostError",
     "EmergencyStopError",
     "GripperError",
+    "MotionFailedError",
     "ProtectiveStopError",
     "SafetyStopError",
 ]
@@ -17,6 +18,11 @@ __all__ = [
 class ConnectionLostError(DeviceNotConnectedError):
     """The link to a device dropped while it was in use. The adapter took its stop path (a stop command where
     the control link still answered) and marked itself disconnected; `reconnect()` or `connect()` again."""
+
+
+class MotionFailedError(PromposeError):
+    """The controller refused a move, never started it, or did not finish it in time; the adapter sent a
+    stop. The link is still up (check the pendant for the reason: a program running, a mode change)."""
 
 
 class SafetyStopError(PromposeError):

@@ -12,6 +12,8 @@ and watched until they finish, so that
 - a protective or emergency stop during a move raises `ProtectiveStopError` / `EmergencyStopError`;
 - a dropped link (control or receive) takes the stop path (`stopJ`/`stopL`, or `servoStop` while servoing,
   where the control link still answers), marks the arm disconnected and raises `ConnectionLostError`;
+- a move the controller refuses, never starts, or does not finish in time is stopped and raises
+  `MotionFailedError` (the link stays up);
 - `stop()` from another thread ends the move (the blocked call then returns normally).
 
 `disconnect()` stops any motion and ends the controller script (`stopScript`).
@@ -38,7 +40,12 @@ from numpy.typing import ArrayLike
 from prompose_grasp._optional import require
 from prompose_grasp.errors import DeviceNotConnectedError, InvalidInputError, UnreachableError
 from prompose_grasp.geometry.se3 import T_from_pose_vector, pose_vector_from_T
-from prompose_grasp.hardware.errors import ConnectionLostError, EmergencyStopError, ProtectiveStopError
+from prompose_grasp.hardware.errors import (
+    ConnectionLostError,
+    EmergencyStopError,
+    MotionFailedError,
+    ProtectiveStopError,
+)
 from prompose_grasp.robot.interfaces import Arm, JointCommand, JointTrajectory, LinearCommand
 from prompose_grasp.robot.model import RobotModel, load_robot
 from prompose_grasp.robot.validator import CommandValidator, ValidatorConfig
@@ -167,6 +174,11 @@ class URRtdeConfig:
         stop_linear_decel_m_s2: deceleration of stopL [m/s^2].
         move_timeout_margin_s: a move not finished this long after its trapezoid time limit is stopped and
             reported (a controller that stopped answering progress) [s].
+        start_timeout_s: a move the controller never reports running, with the arm not at its target after
+            this long, is stopped and reported [s].
+        reached_tol_rad, reached_tol_m: "at the target" for a move that finished between two polls: every
+            joint within this [rad] (moveJ), the TCP within this [m] (moveL). The controller itself
+            finishes within ~1e-4 rad / 0.1 mm.
         use_io: also open the IO link (for a suction gripper on the controller's digital outputs).
     """
 
@@ -178,6 +190,9 @@ class URRtdeConfig:
     stop_joint_decel_rad_s2: float = 2.0
     stop_linear_decel_m_s2: float = 1.0
     move_timeout_margin_s: float = 10.0
+    start_timeout_s: float = 1.0
+    reached_tol_rad: float = 1e-3
+    reached_tol_m: float = 1e-3
     use_io: bool = False
 
     def __post_init__(self) -> None:
@@ -193,6 +208,9 @@ class URRtdeConfig:
             "stop_joint_decel_rad_s2",
             "stop_linear_decel_m_s2",
             "move_timeout_margin_s",
+            "start_timeout_s",
+            "reached_tol_rad",
+            "reached_tol_m",
         ):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
@@ -403,6 +421,7 @@ class URRtdeArm(Arm):
             "joint",
             lambda: self._control.moveJ(q_list, command.speed_rad_s, command.accel_rad_s2, True),
             timeout_s,
+            lambda: float(np.max(np.abs(self.joint_positions() - command.q))) <= self.config.reached_tol_rad,
         )
         return command
 
@@ -424,11 +443,21 @@ class URRtdeArm(Arm):
             "linear",
             lambda: self._control.moveL(pose, command.speed_m_s, command.accel_m_s2, True),
             timeout_s,
+            lambda: (
+                float(np.linalg.norm(self.tcp_pose()[:3, 3] - command.T_base_tcp[:3, 3]))
+                <= self.config.reached_tol_m
+            ),
         )
         return command
 
-    def _run_async(self, what: str, motion: str, send, nominal_s: float) -> None:
-        """Send an asynchronous move and watch it: progress, link, safety, stop requests."""
+    def _run_async(self, what: str, motion: str, send, nominal_s: float, reached) -> None:
+        """Send an asynchronous move and watch it: progress, link, safety, stop requests.
+
+        The move counts as finished when the progress register, having shown it running, reads -1 again,
+        or when it reads -1 and `reached()` says the arm stands at the target (a short move may finish
+        between two polls). A move that neither shows as running nor arrives within `start_timeout_s` is
+        stopped and reported: the next command would otherwise be sent over a move still in progress.
+        """
         self._stop_requested.clear()
         self._motion = motion
         try:
@@ -438,8 +467,10 @@ class URRtdeArm(Arm):
         if not accepted:
             self._motion = None
             self._check(what)  # a safety stop or a lost link explains a refusal
-            raise ConnectionLostError(f"{what}: the controller did not accept the command")
-        deadline = time.monotonic() + nominal_s + self.config.move_timeout_margin_s
+            raise MotionFailedError(f"{what}: the controller did not accept the command")
+        t_sent = time.monotonic()
+        deadline = t_sent + nominal_s + self.config.move_timeout_margin_s
+        started = False
         while True:
             if self._stop_requested.is_set():
                 return
@@ -448,12 +479,19 @@ class URRtdeArm(Arm):
             except RuntimeError as exc:
                 self._lost(what, exc)
             self._check(what)
-            if not running:
+            started = started or running
+            if not running and (started or reached()):
                 self._motion = None
                 return
+            if not started and time.monotonic() - t_sent > self.config.start_timeout_s:
+                self._send_stop()
+                raise MotionFailedError(
+                    f"{what}: the controller never reported the move running and the arm is not at the "
+                    f"target after {self.config.start_timeout_s:.1f} s; stopped"
+                )
             if time.monotonic() > deadline:
                 self._send_stop()
-                raise ConnectionLostError(
+                raise MotionFailedError(
                     f"{what}: the move did not finish within "
                     f"{nominal_s + self.config.move_timeout_margin_s:.1f} s; stopped"
                 )
@@ -488,7 +526,7 @@ class URRtdeArm(Arm):
             if not ok:
                 self._check("follow")
                 self._send_stop()
-                raise ConnectionLostError("follow: the controller refused a servoJ command; stopped")
+                raise MotionFailedError("follow: the controller refused a servoJ command; stopped")
             self._control.waitPeriod(t_cycle)
         self._motion = None
         self._control.servoStop(c.stop_joint_decel_rad_s2)

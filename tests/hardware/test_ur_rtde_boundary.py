@@ -15,6 +15,7 @@ from prompose_grasp.geometry.se3 import T_from_pose_vector, pose_vector_from_T
 from prompose_grasp.hardware import (
     ConnectionLostError,
     EmergencyStopError,
+    MotionFailedError,
     ProtectiveStopError,
     URRtdeArm,
     URRtdeConfig,
@@ -29,6 +30,7 @@ def make_arm(moving_polls: int = 3, config: URRtdeConfig | None = None):
     log = CallLog()
     control = FakeControl(log, moving_polls=moving_polls)
     receive = FakeReceive(HOME_Q, pose_vector_from_T(ROBOT.fk_tcp(HOME_Q)))
+    control.receive = receive  # the arm arrives where it was sent
     links = FakeLinks(control, receive, FakeIO(log))
     arm = URRtdeArm("10.0.0.2", ROBOT, config=config or URRtdeConfig(poll_period_s=0.001), links=links)
     return arm, control, receive, log, links
@@ -69,6 +71,19 @@ def test_move_linear_sends_the_ur_pose_vector_of_the_target():
     # Round trip through (x, y, z, rotation vector): float64 rounding only.
     np.testing.assert_allclose(T_from_pose_vector(pose), T, atol=1e-12)
     np.testing.assert_allclose(pose[:3], T[:3, 3], atol=0)  # the translation is copied, not computed
+
+
+def test_a_move_that_never_runs_nor_arrives_is_stopped_and_reported():
+    arm, control, _, log, _ = make_arm(
+        moving_polls=0, config=URRtdeConfig(poll_period_s=0.001, start_timeout_s=0.05)
+    )
+    control.receive = None  # progress reads -1 at once and the arm stays where it was
+    with arm:
+        with pytest.raises(MotionFailedError, match="never reported the move running"):
+            arm.move_joints(HOME_Q + 0.05, 0.5, 1.0)
+        assert arm.is_connected  # the link is fine: only the move failed
+    names = log.names()
+    assert names.index("stopJ") > names.index("moveJ")
 
 
 def test_tcp_pose_is_the_receive_pose_vector_as_a_transform():
