@@ -27,6 +27,7 @@ import platform
 import sys
 import time
 from collections import defaultdict
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -51,7 +52,7 @@ _MODES = ("exact", "aligned", "nocs")
 
 def run(
     data: str | Path,
-    checkpoints: dict[str, str | Path],
+    checkpoints: Mapping[str, str | Path],
     split: str = "test",
     max_frames: int | None = None,
     with_fit: bool = True,

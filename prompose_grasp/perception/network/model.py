@@ -87,6 +87,8 @@ class ProMPoseNet(nn.Module):
         dinov2_dir: local DINOv2 folder overriding `config.dinov2_dir` (only for `visual_backbone="dinov2"`).
     """
 
+    generic_prior: Tensor  # (prior_points, 3) buffer, see `generic_prior_points`
+
     def __init__(self, config: NetworkConfig, dinov2_dir: str | Path | None = None):
         super().__init__()
         self.config = config

@@ -133,10 +133,9 @@ class NetworkPoseHead:
         valid = np.array([f is not None for f in used])
         if not valid.any():
             raise InvalidInputError(f"no frame has >= {MIN_POINTS} depth points inside the mask")
-        fill = used[int(np.flatnonzero(valid)[0])]
+        fill = next(f for f in used if f is not None)
         # invalid frames are padding (masked out as keys), filled with a valid frame's data as in training
-        window = [f if f is not None else fill for f in used]
-        assert all(f is not None for f in window)
+        window: list[PreparedFrame] = [f if f is not None else fill for f in used]
         tokens = self._text_tokens(prompt)
 
         def batch(a: np.ndarray) -> torch.Tensor:  # one window: a leading batch axis of 1
