@@ -31,7 +31,7 @@ from prompose_grasp.grasp.place import (
     pallet_slots,
     plan_place,
 )
-from prompose_grasp.grasp.planner import generate_candidates, gripper_hulls, plan_grasps
+from prompose_grasp.grasp.planner import build_scene, generate_candidates, gripper_hulls, plan_grasps
 from prompose_grasp.grasp.scene import CollisionScene, Hit, voxelize_points
 from prompose_grasp.grasp.synthesis import Candidates, antipodal_grasps, box_grasps, suction_grasps
 from prompose_grasp.grasp.types import Grasp, GraspConfig, GraspPlan, ObjectModel, Plane
@@ -59,6 +59,7 @@ __all__ = [
     "SuctionCupGeometry",
     "antipodal_grasps",
     "box_grasps",
+    "build_scene",
     "check_path",
     "generate_candidates",
     "get_gripper",

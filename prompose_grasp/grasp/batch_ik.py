@@ -19,7 +19,6 @@ from prompose_grasp.robot.kinematics import (
     dh_transforms,
     fk_batch,
     rotation_distance,
-    wrap_to_pi,
 )
 from prompose_grasp.robot.ur_models import URSpec
 
@@ -39,6 +38,13 @@ def _inv(T: np.ndarray) -> np.ndarray:
     out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
     out[..., 3, 3] = 1.0
     return out
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    """`wrap_to_pi` (angles to (-pi, pi]) with floor instead of mod: the same values up to rounding, a few
+    times faster on the (N, 8, 6) branch arrays."""
+    w = a - _TWO_PI * np.floor((a + np.pi) / _TWO_PI)
+    return np.where(w <= -np.pi, w + _TWO_PI, w)
 
 
 def _clip_arg(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -124,7 +130,7 @@ def ik_branches_batch(
         axis=-1,
     ).reshape(n, 8, 6)
     valid = np.repeat((ok15.reshape(-1) & ok3)[:, None], 2, axis=1).reshape(n, 8)
-    Q = wrap_to_pi(Q)
+    Q = _wrap(Q)
     if not verify:
         return Q, valid
     # Verify by forward kinematics (the branches that do not exist give garbage that FK rejects).
@@ -152,7 +158,7 @@ def nearest_in_limits_batch(
     seed = np.asarray(q_seed, dtype=np.float64)
     if seed.ndim == 2:
         seed = seed[:, None, :]
-    shifted = seed + wrap_to_pi(Q - seed)
+    shifted = seed + _wrap(Q - seed)
     shifted = np.where(shifted > upper, shifted - _TWO_PI, shifted)
     shifted = np.where(shifted < lower, shifted + _TWO_PI, shifted)
     ok = valid & np.all((shifted >= lower) & (shifted <= upper), axis=-1)

@@ -32,7 +32,7 @@ from prompose_grasp.grasp.batch_ik import ik_nearest_batch
 from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry
 from prompose_grasp.grasp.place import PlacePose
 from prompose_grasp.grasp.planner import _gripper
-from prompose_grasp.grasp.scene import CollisionScene, Hit, _transform
+from prompose_grasp.grasp.scene import CollisionScene, Hit
 from prompose_grasp.grasp.types import Grasp, ObjectModel
 from prompose_grasp.robot.interfaces import JointTrajectory
 from prompose_grasp.robot.model import RobotModel
@@ -135,30 +135,25 @@ def _samples(q0: np.ndarray, q1: np.ndarray, r: np.ndarray, resolution_m: float)
 
 
 class _Mover:
-    """The gripper's parts (and a held box) as fcl objects that follow the tcp."""
+    """The gripper's parts (and a held box) as parts moving with the flange, for `arm_hits_batch`."""
 
     def __init__(
         self, gripper, opening_m: float, held: ObjectModel | None, T_tcp_obj: np.ndarray | None, margin
     ):
-        self.parts = []
+        T_flange_tcp = gripper.T_flange_tcp
+        self.parts: list[tuple[str, fcl.CollisionGeometry, np.ndarray, np.ndarray, str]] = []
         for part in gripper.parts(opening_m if isinstance(gripper, ParallelJawGeometry) else None):
             if part.shape == "box":
-                geom = fcl.Box(*(2.0 * np.asarray(part.size_m)))
+                half = np.asarray(part.size_m, dtype=np.float64)
+                geom = fcl.Box(*(2.0 * half))
             else:
-                geom = fcl.Cylinder(part.size_m[0], 2.0 * part.size_m[1])
-            self.parts.append((part.name, fcl.CollisionObject(geom, fcl.Transform()), part.T_tcp_part))
-        if held is not None:
+                r, h = part.size_m[0], part.size_m[1]
+                half = np.array([r, r, h])
+                geom = fcl.Cylinder(r, 2.0 * h)
+            self.parts.append((part.name, geom, T_flange_tcp @ part.T_tcp_part, half, part.shape))
+        if held is not None and T_tcp_obj is not None:
             half = np.maximum(held.pose.size / 2.0 - margin, 1e-4)
-            geom = fcl.Box(*(2.0 * half))
-            self.parts.append(("held object", fcl.CollisionObject(geom, fcl.Transform()), T_tcp_obj))
-
-    def at(self, T_base_tcp: np.ndarray) -> list[tuple[str, fcl.CollisionObject]]:
-        out = []
-        for name, obj, T_tcp_part in self.parts:
-            T = T_base_tcp @ T_tcp_part
-            obj.setTransform(_transform(T[:3, :3], T[:3, 3]))
-            out.append((name, obj))
-        return out
+            self.parts.append(("held object", fcl.Box(*(2.0 * half)), T_flange_tcp @ T_tcp_obj, half, "box"))
 
 
 def check_path(
@@ -190,13 +185,15 @@ def check_path(
     for q0, q1 in itertools.pairwise(Q):
         samples.append(_samples(q0, q1, r, cfg.resolution_m)[1:])
     S = np.vstack(samples)
-    for q in S:
-        if np.any(q < lower - 1e-12) or np.any(q > upper + 1e-12):
-            return S, Hit("limits", f"joint limits at {np.round(q, 3).tolist()}")
-        T_tcp = robot.fk(q) @ gripper.T_flange_tcp
-        hit = scene.arm_hit(robot, q, include_target=include_target, extra=mover.at(T_tcp))
+    out = np.flatnonzero(np.any((S < lower - 1e-12) | (S > upper + 1e-12), axis=1))
+    first_out = int(out[0]) if out.size else len(S)
+    # All samples up to the first one outside the limits in one batched query; the first hit along the path.
+    hits = scene.arm_hits_batch(robot, S[:first_out], include_target=include_target, extra=mover.parts)
+    for hit in hits:
         if hit is not None:
             return S, hit
+    if out.size:
+        return S, Hit("limits", f"joint limits at {np.round(S[first_out], 3).tolist()}")
     return S, None
 
 

@@ -112,11 +112,13 @@ def _lowest_heights(
     """(N,) lowest height above the support of any hull box corner (exact for boxes) [m]."""
     n = support.normal
     # Height of a box = height of its centre - sum_k |n . axis_k| half_k; the axes are the tcp axes.
-    axes_dot = np.abs(n @ T[:, :3, :3])  # (N, 3)
+    n_tcp = n @ T[:, :3, :3]  # (N, 3): the normal's components along the tcp axes
+    axes_dot = np.abs(n_tcp)
+    base_h = support.height(T[:, :3, 3])
     low = np.full(T.shape[0], np.inf)
     for k, half in enumerate(halves):
-        c_base = (T[:, :3, :3] @ centres_tcp[:, k, :, None])[..., 0] + T[:, :3, 3]
-        h = support.height(c_base) - axes_dot @ np.asarray(half)
+        c = centres_tcp[:, k, :]
+        h = base_h + np.einsum("ij,ij->i", n_tcp, c) - axes_dot @ np.asarray(half)
         low = np.minimum(low, h)
     return low
 
@@ -406,9 +408,11 @@ def _target_points_inside(
         V = target.pose.corners()
     # Vertex coordinates along each tcp axis in each pose's frame: three (N, V) arrays (elementwise tests on
     # them are much cheaper than reductions over a trailing axis of length 3).
-    rel = V[None, :, :] - T[:, None, :3, 3]  # (N, V, 3)
+    rel = [V[None, :, j] - T[:, j, 3, None] for j in range(3)]  # base components, (N, V) each
     hit = np.zeros(len(T), dtype=bool)
-    axes = [np.matmul(rel, T[:, :3, a, None])[:, :, 0] for a in range(3)]
+    axes = [
+        rel[0] * T[:, 0, a, None] + rel[1] * T[:, 1, a, None] + rel[2] * T[:, 2, a, None] for a in range(3)
+    ]
     for k, half in enumerate(halves):
         inside = np.abs(axes[0] - centres_tcp[:, None, k, 0]) <= half[0]
         inside &= np.abs(axes[1] - centres_tcp[:, None, k, 1]) <= half[1]

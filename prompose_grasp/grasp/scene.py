@@ -24,6 +24,7 @@ fcl's narrowphase, one `fcl.collide` each, skipping queries already known to col
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -339,6 +340,7 @@ class CollisionScene:
         label,
         items: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
         objects: Sequence[tuple[fcl.CollisionObject, Hit, np.ndarray | None]],
+        segments: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     ) -> int:
         """Fill `hits[owner[q]]` (where still None) with what query q touches among `items`.
 
@@ -350,6 +352,9 @@ class CollisionScene:
             label: (Hit of the scene item, q) -> the Hit to report.
             items: (centres, R, halves, kinds, world half extents) of the scene items; objects: their
                 (fcl object, Hit, voxel centres or None).
+            segments: (p0 (Q, 3), p1 (Q, 3), radius (Q,)) of queries that are capsules (radius NaN for the
+                others): a voxel cube whose centre is within the radius of the segment is a certain hit, one
+                farther than the radius + half the cube's diagonal certainly free; fcl decides the rest.
 
         Returns:
             the number of fcl narrowphase calls made.
@@ -391,11 +396,26 @@ class CollisionScene:
             inside = (d[:, 0] <= _SAT_EPS) & (d[:, 1] <= _SAT_EPS) & (d[:, 2] <= _SAT_EPS)
             rows, cubes = rows[inside], cubes[inside]
             touch = obb_overlap(qc[q[rows]], qR[q[rows]], qh[q[rows]], cubes, np.eye(3), half)
+            rows, cubes = rows[touch], cubes[touch]
             any_touch = np.zeros(len(q), dtype=bool)
-            any_touch[rows[touch]] = True
+            any_touch[rows] = True
             ex = exact_q[q[vox]]
             decided[vox] = any_touch[vox] & ex
             narrow[vox] = any_touch[vox] & ~ex
+            if segments is not None and rows.size:
+                p0, p1, rad = (x[q[rows]] for x in segments)
+                cap = np.isfinite(rad)
+                if np.any(cap):
+                    rows, cubes, p0, p1, rad = rows[cap], cubes[cap], p0[cap], p1[cap], rad[cap]
+                    d = _points_segments_distance(cubes, p0, p1)
+                    certain = np.zeros(len(q), dtype=bool)
+                    certain[rows[d <= rad]] = True
+                    maybe = np.zeros(len(q), dtype=bool)
+                    maybe[rows[d <= rad + half[0] * math.sqrt(3.0)]] = True
+                    capsule_pair = np.zeros(len(q), dtype=bool)
+                    capsule_pair[rows] = True
+                    decided |= certain
+                    narrow &= ~capsule_pair | (maybe & ~certain)
         dk = np.flatnonzero(decided)
         if dk.size:
             # The first item (in registration order) each owner certainly touches.
@@ -647,6 +667,16 @@ class CollisionScene:
         qh = np.tile(np.vstack([cap_half, part_half]), (n, 1))
         exact = np.tile(np.array([False] * C + [p[4] == "box" for p in parts]), n)
         owner = np.repeat(np.arange(n), C + X)
+        # Capsule segments (the extra parts are no capsules: NaN radius).
+        axis_half = np.concatenate([0.5 * length, np.zeros(X)])[None, :, None] * np.concatenate(
+            [T[..., :3, 2], Tx[..., :3, 2]], axis=1
+        )
+        centre = np.concatenate([T[..., :3, 3], Tx[..., :3, 3]], axis=1)
+        segments = (
+            (centre - axis_half).reshape(-1, 3),
+            (centre + axis_half).reshape(-1, 3),
+            np.tile(np.concatenate([radius, np.full(X, np.nan)]), n),
+        )
         movers: dict[int, fcl.CollisionObject] = {}
 
         def query_object(q: int) -> fcl.CollisionObject:
@@ -666,11 +696,11 @@ class CollisionScene:
             return Hit(hit.kind, f"{hit.name} ({where})")
 
         items = self._item_arrays(False)
-        self._resolve(qc, qR, qh, owner, hits, exact, query_object, label, items, self._items)
+        self._resolve(qc, qR, qh, owner, hits, exact, query_object, label, items, self._items, segments)
         if include_target and self.target_object is not None:
             self._resolve(
                 qc, qR, qh, owner, hits, exact, query_object, label, self._item_arrays(True),
-                [(self.target_object, Hit("target", self.target.name), None)],
+                [(self.target_object, Hit("target", self.target.name), None)], segments,
             )  # fmt: skip
         return hits
 
@@ -684,6 +714,15 @@ class CollisionScene:
             self._capsules[(id(robot), k)] = entry
             self._labels[id(geom)] = Hit("arm", self._arm_capsules(robot)[k][0])
         return entry[1]
+
+
+def _points_segments_distance(P: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+    """(N,) distance [m] of each point P[i] (N, 3) from the segment p0[i] -> p1[i]."""
+    d = p1 - p0
+    L2 = np.einsum("ij,ij->i", d, d)
+    s = np.einsum("ij,ij->i", P - p0, d) / np.maximum(L2, 1e-300)
+    s = np.clip(np.where(L2 > 1e-18, s, 0.0), 0.0, 1.0)
+    return np.linalg.norm(P - (p0 + s[:, None] * d), axis=1)
 
 
 def _segment_distance(P: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:

@@ -115,3 +115,37 @@ def test_points_of_an_unmodelled_obstacle_reject_like_an_object():
     except NoFeasibleGrasp as err:
         rejected = err.rejected
     assert rejected.get("collision_points", 0) > 0
+
+
+def test_planned_opening_fits_between_close_neighbours_where_the_full_stroke_does_not():
+    # A 40 mm wide box between two neighbours 10 mm from its faces. Closing along x, the jaws open to
+    # width + 2 x 10 mm = 60 mm: each finger (6 mm pad + 8 mm plate) then ends 44 mm from the centre, 6 mm
+    # short of a neighbour; opened to the full 85 mm stroke it would end at 56.5 mm, inside the neighbour.
+    target = _box("box", [-0.5, 0.1, 0.03], [0.04, 0.06, 0.06])
+    left = _box("left", [-0.5 - 0.05 - 0.02, 0.1, 0.03], [0.04, 0.1, 0.06])
+    right = _box("right", [-0.5 + 0.05 + 0.02, 0.1, 0.03], [0.04, 0.1, 0.06])
+    cfg = GraspConfig(exhaustive=True, max_grasps=10_000)
+    plan = plan_grasps(target, ROBOT, JAW, [left, right], TABLE, None, HOME_Q, cfg)
+    top_x = [g for g in plan if np.allclose(g.approach, [0, 0, -1]) and abs(g.T_base_tcp[0, 1]) > 1 - 1e-9]
+    assert top_x, "the top-down grasp closing along x between the neighbours is feasible"
+    for g in top_x:
+        assert g.opening_m == pytest.approx(0.04 + 2 * 0.01, abs=1e-12)  # width + 2 clearance
+        assert g.opening_m < JAW.stroke_m
+    # The same gripper placement opened to the full stroke hits a neighbour (the scene's own check).
+    from prompose_grasp.grasp import build_scene, gripper_hulls
+
+    scene = build_scene(target, ROBOT, JAW, [left, right], TABLE)
+    T = np.array([g.T_base_tcp for g in top_x])
+    for opening, expect_hit in ((top_x[0].opening_m, False), (JAW.stroke_m, True)):
+        halves, centres_tcp = gripper_hulls(JAW, np.full(len(T), opening), 0.10)
+        centres = centres_tcp @ np.swapaxes(T[:, :3, :3], 1, 2) + T[:, None, :3, 3]
+        hits = scene.boxes_first_hits(T[:, :3, :3], centres, halves)
+        assert all((h is not None) == expect_hit for h in hits), opening
+        assert not expect_hit or {h.name for h in hits} <= {"left", "right"}
+    # Planning with a clearance that asks for the full stroke rejects those grasps for the neighbours.
+    wide = GraspConfig(exhaustive=True, max_grasps=10_000, clearance_m=0.05)
+    plan_wide = plan_grasps(target, ROBOT, JAW, [left, right], TABLE, None, HOME_Q, wide)
+    assert not [
+        g for g in plan_wide if np.allclose(g.approach, [0, 0, -1]) and abs(g.T_base_tcp[0, 1]) > 1 - 1e-9
+    ]
+    assert plan_wide.rejected.get("collision_object", 0) > plan.rejected.get("collision_object", 0)
