@@ -25,14 +25,16 @@ from prompose_grasp.grasp.motion import (
 )
 from prompose_grasp.grasp.place import (
     PalletPattern,
+    PalletSlot,
     PlaceConfig,
     PlacePose,
     PlaceTarget,
+    pallet_layout,
     pallet_slots,
     plan_place,
 )
 from prompose_grasp.grasp.planner import build_scene, generate_candidates, gripper_hulls, plan_grasps
-from prompose_grasp.grasp.scene import CollisionScene, Hit, voxelize_points
+from prompose_grasp.grasp.scene import CollisionScene, Hit, obb_overlap, voxelize_points
 from prompose_grasp.grasp.synthesis import Candidates, antipodal_grasps, box_grasps, suction_grasps
 from prompose_grasp.grasp.types import Grasp, GraspConfig, GraspPlan, ObjectModel, Plane
 
@@ -50,6 +52,7 @@ __all__ = [
     "MotionSegment",
     "ObjectModel",
     "PalletPattern",
+    "PalletSlot",
     "ParallelJawGeometry",
     "PickPlaceMotion",
     "PlaceConfig",
@@ -66,6 +69,8 @@ __all__ = [
     "gripper_hulls",
     "ik_branches_batch",
     "ik_nearest_batch",
+    "obb_overlap",
+    "pallet_layout",
     "pallet_slots",
     "plan_grasps",
     "plan_pick_place",

@@ -7,9 +7,10 @@ from the grasp: `T_base_tcp = T_base_obj_place @ T_obj_tcp`, with `T_obj_tcp` fi
 
 - surface / bin: a grid of positions where the whole footprint is inside the surface (a bin's inner floor,
   less `wall_margin_m` from its walls), nearest the preferred point (the centre, or `near_xy_m`) first;
-- pallet: a `PalletPattern` (rows x cols x layers, gap between cartons) sized from the object's estimated
-  footprint and height; slots are filled layer by layer, row by row; a slot is taken when an obstacle box's
-  centre lies in it, and a slot above layer 0 needs the slot below it taken.
+- pallet: a `PalletPattern` (rows x cols x layers, gap between cartons; column-stacked, or interlocked with
+  odd layers turned a quarter turn) sized from the object's estimated footprint and height; slots are filled
+  layer by layer, row by row; a slot is taken when an obstacle box's centre lies in it, and a slot above
+  layer 0 needs every slot it rests on taken.
 
 Each candidate is checked: the object's box (shrunk by `contact_margin_m`) and the gripper's hull boxes swept
 from the pre-place pose against the obstacles (python-fcl, same scene as grasping), closed-form IK within the
@@ -36,20 +37,35 @@ from prompose_grasp.grasp.scene import CollisionScene
 from prompose_grasp.grasp.types import Grasp, ObjectModel
 from prompose_grasp.robot.model import RobotModel
 
-__all__ = ["PalletPattern", "PlaceConfig", "PlacePose", "PlaceTarget", "pallet_slots", "plan_place"]
+__all__ = [
+    "PalletPattern",
+    "PalletSlot",
+    "PlaceConfig",
+    "PlacePose",
+    "PlaceTarget",
+    "pallet_layout",
+    "pallet_slots",
+    "plan_place",
+]
 
 _KINDS = ("surface", "bin", "pallet")
 
 
 @dataclass(frozen=True)
 class PalletPattern:
-    """A column-stacked carton pattern: `rows` (along the pallet's y) x `cols` (along x) x `layers`, with
-    `gap_m` between neighbouring cartons [m]."""
+    """A carton stacking pattern: `rows` (along the pallet's y) x `cols` (along x) x `layers`, with `gap_m`
+    between neighbouring cartons [m].
+
+    Column stack (`interlock=False`): every layer the same, each carton on the one below. Interlocked
+    (`interlock=True`): odd layers are turned a quarter turn, the cartons rotated 90 deg about the normal and
+    the grid transposed (`rows` columns along x, `cols` rows along y), so the seams of neighbouring layers
+    cross and each upper carton bridges the ones below (the pattern must fit the deck both ways)."""
 
     rows: int = 3
     cols: int = 3
     layers: int = 2
     gap_m: float = 0.01
+    interlock: bool = False
 
     def __post_init__(self) -> None:
         if min(self.rows, self.cols, self.layers) < 1 or not (math.isfinite(self.gap_m) and self.gap_m >= 0):
@@ -147,32 +163,71 @@ def _rz(yaw: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+@dataclass(frozen=True, eq=False)
+class PalletSlot:
+    """One carton place of a pallet pattern, in the surface frame.
+
+    Attributes:
+        index: (row, col, layer) in the layer's own grid.
+        centre_m: (3,) centre of the carton box [m] (on the deck or on the layer below).
+        yaw_rad: the carton's turn about the surface normal from its attitude at the grasp [rad].
+        half_xy_m: (2,) half footprint along the surface x, y at that yaw [m].
+    """
+
+    index: tuple[int, int, int]
+    centre_m: np.ndarray
+    yaw_rad: float
+    half_xy_m: np.ndarray
+
+
+def pallet_layout(target: PlaceTarget, footprint_half_xy: np.ndarray, half_height: float) -> list[PalletSlot]:
+    """The slots of the pallet's pattern for a carton of half footprint `footprint_half_xy` (2,) (surface x,
+    y, unturned) and half height [m], in filling order: layer by layer, row by row.
+
+    Raises `InvalidInputError` when a layer of the pattern does not fit on the deck."""
+    p = target.pattern or PalletPattern()
+    out = []
+    for layer in range(p.layers):
+        turned = p.interlock and layer % 2 == 1
+        half = (
+            np.asarray(footprint_half_xy, dtype=np.float64)[::-1] if turned else np.asarray(footprint_half_xy)
+        )
+        n_rows, n_cols = (p.cols, p.rows) if turned else (p.rows, p.cols)
+        pitch = 2.0 * half + p.gap_m
+        total = np.array([n_cols, n_rows]) * pitch - p.gap_m
+        if np.any(total / 2.0 > target.half_extents_xy_m + 1e-9):
+            raise InvalidInputError(
+                f"pallet pattern {n_rows} x {n_cols} of {2 * half.round(3)} m cartons "
+                f"({total.round(3)} m) does not fit the deck ({2 * target.half_extents_xy_m.round(3)} m)"
+            )
+        for row in range(n_rows):
+            for col in range(n_cols):
+                x = -total[0] / 2.0 + half[0] + col * pitch[0]
+                y = -total[1] / 2.0 + half[1] + row * pitch[1]
+                z = half_height + layer * 2.0 * half_height
+                out.append(
+                    PalletSlot((row, col, layer), np.array([x, y, z]), 0.5 * math.pi * turned, half.copy())
+                )
+    return out
+
+
 def pallet_slots(
     target: PlaceTarget, footprint_half_xy: np.ndarray, half_height: float
 ) -> list[tuple[tuple[int, int, int], np.ndarray]]:
-    """Slot centres of the pallet pattern, in the surface frame, in filling order.
+    """Slot centres of the pallet pattern, in the surface frame, in filling order (`pallet_layout` without the
+    turns).
 
     Returns:
         [((row, col, layer), (3,) centre of the carton box in the surface frame [m])], layer by layer, row by
         row. Raises `InvalidInputError` when the pattern does not fit on the deck.
     """
-    p = target.pattern or PalletPattern()
-    pitch = 2.0 * footprint_half_xy + p.gap_m
-    total = np.array([p.cols, p.rows]) * pitch - p.gap_m
-    if np.any(total / 2.0 > target.half_extents_xy_m + 1e-9):
-        raise InvalidInputError(
-            f"pallet pattern {p.rows} x {p.cols} of {2 * footprint_half_xy.round(3)} m cartons "
-            f"({total.round(3)} m) does not fit the deck ({2 * target.half_extents_xy_m.round(3)} m)"
-        )
-    out = []
-    for layer in range(p.layers):
-        for row in range(p.rows):
-            for col in range(p.cols):
-                x = -total[0] / 2.0 + footprint_half_xy[0] + col * pitch[0]
-                y = -total[1] / 2.0 + footprint_half_xy[1] + row * pitch[1]
-                z = half_height + layer * 2.0 * half_height
-                out.append(((row, col, layer), np.array([x, y, z])))
-    return out
+    return [(s.index, s.centre_m) for s in pallet_layout(target, footprint_half_xy, half_height)]
+
+
+def _supports(slot: PalletSlot, below: Sequence[PalletSlot]) -> list[PalletSlot]:
+    """The slots of the layer below whose footprint overlaps this slot's by more than 1 cm each way."""
+    d = [np.abs(b.centre_m[:2] - slot.centre_m[:2]) for b in below]
+    return [b for b, dd in zip(below, d) if np.all(dd < slot.half_xy_m + b.half_xy_m - 0.01)]
 
 
 def plan_place(
@@ -217,15 +272,19 @@ def plan_place(
     candidates: list[tuple[tuple[int, int, int] | None, np.ndarray, float]] = []  # (slot, centre_surf, yaw)
     if target.kind == "pallet":
         half_xy, half_h = _footprint(R_surf_obj, size)
-        taken = _taken_slots(target, obstacles, half_xy, half_h)
-        for slot, centre in pallet_slots(target, half_xy, half_h):
-            row, col, layer = slot
-            if slot in taken:
+        layout = pallet_layout(target, half_xy, half_h)
+        taken = _taken_slots(target, obstacles, layout)
+        for slot in layout:
+            layer = slot.index[2]
+            if slot.index in taken:
                 continue
-            if layer > 0 and (row, col, layer - 1) not in taken:
+            # A slot above the deck needs every slot it rests on taken (one below in a column stack, the
+            # two or more it bridges when interlocked).
+            below = [b for b in layout if b.index[2] == layer - 1]
+            if layer > 0 and not all(b.index in taken for b in _supports(slot, below)):
                 continue
-            centre = centre + np.array([0.0, 0.0, cfg.drop_clearance_m])
-            candidates.append((slot, centre, 0.0))
+            centre = slot.centre_m + np.array([0.0, 0.0, cfg.drop_clearance_m])
+            candidates.append((slot.index, centre, slot.yaw_rad))
     else:
         margin = cfg.wall_margin_m if target.kind == "bin" else 0.0
         near = np.zeros(2) if cfg.near_xy_m is None else np.asarray(cfg.near_xy_m, dtype=np.float64)
@@ -307,15 +366,19 @@ def plan_place(
 
 
 def _taken_slots(
-    target: PlaceTarget, obstacles: Sequence[ObjectModel], half_xy: np.ndarray, half_h: float
+    target: PlaceTarget, obstacles: Sequence[ObjectModel], layout: Sequence[PalletSlot]
 ) -> set[tuple[int, int, int]]:
     """Slots whose volume holds an obstacle box's centre."""
     taken = set()
     T_surf_base = invert_T(target.T_base_surface)
     centres = [T_surf_base[:3, :3] @ o.pose.t + T_surf_base[:3, 3] for o in obstacles]
-    for slot, centre in pallet_slots(target, half_xy, half_h):
+    for slot in layout:
+        half_h = slot.centre_m[2] / (2 * slot.index[2] + 1)
         for c in centres:
-            if np.all(np.abs(c[:2] - centre[:2]) <= half_xy) and abs(c[2] - centre[2]) <= half_h:
-                taken.add(slot)
+            if (
+                np.all(np.abs(c[:2] - slot.centre_m[:2]) <= slot.half_xy_m)
+                and abs(c[2] - slot.centre_m[2]) <= half_h
+            ):
+                taken.add(slot.index)
                 break
     return taken

@@ -20,6 +20,7 @@ from prompose_grasp.grasp import (
     Plane,
     SuctionCupGeometry,
     check_path,
+    pallet_layout,
     pallet_slots,
     plan_grasps,
     plan_pick_place,
@@ -193,3 +194,125 @@ def test_a_1cm_wall_is_caught_at_the_derived_resolution_and_missed_when_under_re
     # The bound (DH offsets beyond each joint + tool) is conservative: a base turn moves the gripper ~2.6x
     # less than it allows here; within 5x keeps the sample count sane.
     assert step > 0.2 * res
+
+
+def _boxes_overlap(a: Pose9D, b: Pose9D) -> bool:
+    """Independent separating-axis test of two boxes (15 axes, plain loops)."""
+    axes = [a.R[:, i] for i in range(3)] + [b.R[:, i] for i in range(3)]
+    axes += [np.cross(a.R[:, i], b.R[:, j]) for i in range(3) for j in range(3)]
+    d = b.t - a.t
+    for ax in axes:
+        n = np.linalg.norm(ax)
+        if n < 1e-9:
+            continue
+        ax = ax / n
+        ra = np.sum(np.abs(a.R.T @ ax) * a.size / 2)
+        rb = np.sum(np.abs(b.R.T @ ax) * b.size / 2)
+        if abs(d @ ax) > ra + rb:
+            return False
+    return True
+
+
+def _on(index, low, high):
+    """The lower-layer slots the upper slot `index` rests on."""
+    s = next(h for h in high if h.index == index)
+    return [
+        b for b in low if np.all(np.abs(b.centre_m[:2] - s.centre_m[:2]) < b.half_xy_m + s.half_xy_m - 0.01)
+    ]
+
+
+def test_interlocked_pallet_layers_cross_their_seams_and_places_are_collision_checked():
+    cup = SuctionCupGeometry()
+    robot = load_robot("ur10e", tcp_offset=cup.T_flange_tcp)
+    size = np.array([0.3, 0.16, 0.2])  # obj x, y (up), z: a 30 x 20 cm footprint, 16 cm tall
+    carton = ObjectModel("carton", Pose9D(R_UP, [0.0, -0.7, 0.08], size), family="carton")
+    grasp = plan_grasps(carton, robot, cup, [], TABLE, None, HOME_Q).best
+    pattern = PalletPattern(rows=3, cols=2, layers=2, gap_m=0.01, interlock=True)
+    pallet = PlaceTarget("pallet", make_T(np.eye(3), [0.0, 0.75, 0.1]), [0.35, 0.35], pattern=pattern)
+    layout = pallet_layout(pallet, np.array([0.15, 0.1]), 0.08)
+    low = [s for s in layout if s.index[2] == 0]
+    high = [s for s in layout if s.index[2] == 1]
+    assert len(low) == len(high) == 6
+    assert all(s.yaw_rad == 0.0 for s in low) and all(s.yaw_rad == pytest.approx(np.pi / 2) for s in high)
+    np.testing.assert_allclose(high[0].half_xy_m, [0.1, 0.15], atol=1e-12)  # the turned footprint
+    # Both layers cover the same 61 x 62 / 62 x 61 cm area, and every upper carton bridges >= 2 lower ones
+    # (no seam runs straight through two layers).
+    for layer in (low, high):
+        lo = np.min([s.centre_m[:2] - s.half_xy_m for s in layer], axis=0)
+        hi = np.max([s.centre_m[:2] + s.half_xy_m for s in layer], axis=0)
+        assert np.all(np.abs(hi - lo - 0.615) <= 0.005 + 1e-12)  # 0.61 or 0.62 m: carton sizes + gaps
+    for s in high:
+        under = [
+            b
+            for b in low
+            if np.all(np.abs(b.centre_m[:2] - s.centre_m[:2]) < b.half_xy_m + s.half_xy_m - 0.01)
+        ]
+        assert len(under) >= 2
+    T_s = pallet.T_base_surface
+
+    def placed(slots):
+        out = []
+        for k, sl in enumerate(slots):
+            c, sn = np.cos(sl.yaw_rad), np.sin(sl.yaw_rad)
+            R = np.array([[c, -sn, 0], [sn, c, 0], [0, 0, 1]]) @ R_UP
+            out.append(ObjectModel(f"c{k}", Pose9D(R, T_s[:3, 3] + sl.centre_m, size), family="carton"))
+        return out
+
+    # Layer 0 complete: the next place is on layer 1, turned a quarter turn, resting on the cartons below
+    # without overlapping any of them (3 mm: the place check's box shrink).
+    below = placed(low)
+    place = plan_place(carton, grasp, pallet, robot, cup, below)
+    assert place.slot is not None and place.slot[2] == 1
+    R_rel = R_UP.T @ place.T_base_obj[:3, :3]
+    np.testing.assert_allclose(np.abs(R_rel), np.abs(np.array([[0, 0, 1], [0, 1, 0], [1, 0, 0]])), atol=1e-9)
+    shrunk = Pose9D(place.T_base_obj[:3, :3], place.T_base_obj[:3, 3], size - 0.006)
+    assert not any(_boxes_overlap(shrunk, o.pose) for o in below)
+    # With one lower carton missing, no upper slot resting on it is offered.
+    missing = low[0]
+    partial = plan_place(carton, grasp, pallet, robot, cup, placed([s for s in low if s is not missing]))
+    assert partial.slot == missing.index  # the hole is filled first (layer by layer)
+    # A stray box reaching 2.5 cm into the free slot (its centre outside it, so the slot is not "taken"):
+    # that slot is rejected by the collision check, and the upper slots resting on it wait.
+    stray_c = T_s[:3, 3] + missing.centre_m + [missing.half_xy_m[0] + 0.01, 0.0, 0.0]
+    stray = ObjectModel("stray", Pose9D(np.eye(3), stray_c, [0.07, 0.05, 0.05]))
+    blocked = plan_place(carton, grasp, pallet, robot, cup, [*placed(low[1:]), stray])
+    assert blocked.slot is not None and blocked.slot[2] == 1
+    assert missing.index not in [b.index for b in _on(blocked.slot, low, high)]
+
+
+def test_bin_place_is_inside_the_walls_and_clear_of_what_is_already_in_it():
+    box = ObjectModel("box", Pose9D(R_UP, [-0.5, 0.15, 0.03], [0.05, 0.06, 0.06]))
+    grasp = plan_grasps(box, ROBOT, JAW, [], TABLE, None, HOME_Q).best
+    T_bin = make_T(np.eye(3), [-0.3, -0.45, 0.02])
+    half, wall_h = np.array([0.12, 0.1]), 0.12
+    walls = [
+        ObjectModel(f"wall{k}", Pose9D(np.eye(3), T_bin[:3, 3] + c, s), kind="fixture")
+        for k, (c, s) in enumerate(
+            [
+                ([half[0] + 0.005, 0, wall_h / 2], [0.01, 2 * half[1] + 0.02, wall_h]),
+                ([-half[0] - 0.005, 0, wall_h / 2], [0.01, 2 * half[1] + 0.02, wall_h]),
+                ([0, half[1] + 0.005, wall_h / 2], [2 * half[0], 0.01, wall_h]),
+                ([0, -half[1] - 0.005, wall_h / 2], [2 * half[0], 0.01, wall_h]),
+            ]
+        )
+    ]
+    inside = ObjectModel("inside", Pose9D(np.eye(3), T_bin[:3, 3] + [0.0, 0.0, 0.04], [0.08, 0.08, 0.08]))
+    target = PlaceTarget("bin", T_bin, half, wall_height_m=wall_h)
+    place = plan_place(box, grasp, target, ROBOT, JAW, [*walls, inside])
+    placed = Pose9D(place.T_base_obj[:3, :3], place.T_base_obj[:3, 3], box.pose.size)
+    corners = (placed.corners() - T_bin[:3, 3]) @ T_bin[:3, :3]
+    assert np.all(np.abs(corners[:, :2]) <= half - 0.01 + 1e-9)  # 1 cm wall margin
+    assert not _boxes_overlap(placed, inside.pose)
+    # The open jaws at the release pose clear the walls and the box already inside (their parts, checked
+    # here against the obstacle boxes with the independent test).
+    for part in JAW.parts(grasp.opening_m):
+        lo, hi = part.aabb_tcp()
+        part_box = Pose9D(
+            place.T_base_tcp[:3, :3],
+            place.T_base_tcp[:3, :3] @ ((lo + hi) / 2) + place.T_base_tcp[:3, 3],
+            hi - lo,
+        )
+        assert not any(_boxes_overlap(part_box, o.pose) for o in [*walls, inside]), part.name
+    # Without the box inside, the centre (the preferred point) is taken.
+    free = plan_place(box, grasp, target, ROBOT, JAW, walls)
+    np.testing.assert_allclose((free.T_base_obj[:3, 3] - T_bin[:3, 3])[:2], [0.0, 0.0], atol=0.02 + 1e-9)
