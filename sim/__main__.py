@@ -5,6 +5,10 @@ the camera's noise model.
 
 `python -m sim pick --scene FILE --command "..." --out DIR --seed N [--video]`: one closed-loop language
 pick-and-place episode (`sim.pick`), writing DIR/summary.json, overlay_0.png and optionally episode.mp4.
+
+`python -m sim bench-pick --scenario tabletop_household|logistics_pallet|real_meshes --episodes N
+[--oracle-mask] [--real-meshes] [--place] [--json OUT]`: the closed-loop success rate over seeded episodes
+(`sim.bench_pick`).
 """
 
 from __future__ import annotations
@@ -54,6 +58,9 @@ def _pick(args: argparse.Namespace) -> int:
         print(f"[{100 * event.fraction:3.0f}%] {event.stage:8s} {event.message}", flush=True)
 
     result = run_episode(args.scene, args.command, args.out, seed=args.seed, video=args.video, on_event=show)
+    if result.summary["outcome"]["reason"] == "not_understood":
+        print(f"command not understood: {result.summary['outcome']['message']}", file=sys.stderr)
+        return 2
     s = result.summary
     print(
         f"{'success' if s['success'] else 'FAILED'}: {s['outcome']['reason']} ({s['outcome']['message']}); "
@@ -80,9 +87,17 @@ def main(argv: list[str] | None = None) -> int:
     pick.add_argument("--out", required=True, help="output folder (summary.json, overlay_0.png, episode.mp4)")
     pick.add_argument("--seed", type=int, default=None, help="scene/noise seed (default: file's)")
     pick.add_argument("--video", action="store_true", help="also write episode.mp4")
+    from sim.bench_pick import add_arguments
+
+    bench = sub.add_parser("bench-pick", help="closed-loop success rate over seeded episodes")
+    add_arguments(bench)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
+        if args.subcommand == "bench-pick":
+            from sim.bench_pick import run_from_args
+
+            return run_from_args(args)
         return _view(args) if args.subcommand == "view" else _pick(args)
     except PromposeError as exc:
         print(f"error: {exc}", file=sys.stderr)

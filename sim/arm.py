@@ -236,6 +236,14 @@ class SimArm(Arm):
     def follow(self, trajectory: JointTrajectory) -> JointTrajectory:
         self._require()
         q0 = self.joint_targets()
+        q_meas = self.joint_positions()
+        q_first = np.asarray(trajectory.q, dtype=np.float64)[0]
+        if np.linalg.norm(q_first - q_meas) < np.linalg.norm(q_first - q0):
+            # Planned from the measured position (a real controller's trajectories start from the actual
+            # joint positions): the servo error (a cup pressed on a face, a load) would otherwise be a jump
+            # in the first 2 ms. Re-anchor the set-point where the arm is; it is at rest between moves.
+            q0 = q_meas
+            self._apply(q0, np.zeros(6), np.zeros(6))
         sent = self.validator.validate_trajectory(trajectory, q0)
         self._run_trajectory(sent, q0)
         return sent

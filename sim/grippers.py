@@ -247,8 +247,8 @@ class ParallelJawGripper(_SimGripperBase):
     """The simulated parallel-jaw gripper of a world built with `gripper="parallel_jaw"`.
 
     `close(force)` moves both fingers inwards at the closing speed and blocks until they stop; each then
-    pushes with `force` [N]. `open()` moves them to the full stroke. Both step the shared world (the arm holds
-    its position meanwhile).
+    pushes with `force` [N]. `open()` moves them to the full stroke, `open_to(width_m)` part way. All step
+    the shared world (the arm holds its position meanwhile).
     """
 
     kind = "parallel_jaw"
@@ -288,6 +288,16 @@ class ParallelJawGripper(_SimGripperBase):
         self._require()
         half = self.geometry.stroke_m / 2.0
         self._drive(half, half, _OPEN_FORCE_N)
+
+    def open_to(self, width_m: float) -> None:
+        """Open (or close, with the opening force) to a pad-face distance of `width_m` [m], within the stroke:
+        a hand opened only as wide as a grasp needs fits between close neighbours."""
+        self._require()
+        w = float(width_m)
+        if not (math.isfinite(w) and 0.0 <= w <= self.geometry.stroke_m + 1e-9):
+            stroke = self.geometry.stroke_m
+            raise InvalidInputError(f"opening must be within [0, {stroke}] m, got {width_m!r}")
+        self._drive(w / 2.0, w / 2.0, _OPEN_FORCE_N)
 
     def close(self, force: float) -> bool:
         self._require()

@@ -31,9 +31,9 @@ from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
 from sim.arm import SimArm
 from sim.camera import SimCamera
 from sim.grippers import ParallelJawGripper, SuctionGripper
-from sim.scene_file import load_world
+from sim.scene_file import build_scene, load_scene
 
-__all__ = ["EpisodeResult", "evaluate_target", "place_targets_of", "run_episode"]
+__all__ = ["EpisodeResult", "evaluate_target", "place_targets_of", "run_episode", "target_name_for"]
 
 logger = logging.getLogger(__name__)
 
@@ -69,19 +69,65 @@ def place_targets_of(world) -> dict[str, PlaceTarget]:
     return out
 
 
-def _target_name(world, command_text: str, first_estimate_world: np.ndarray | None) -> str:
-    """Evaluation only: the object the command meant, by the scene prompts (longest contained prompt), else
-    the object nearest the first estimate."""
-    text = command_text.lower()
-    named = [o for o in world.objects if o.prompt and o.prompt.lower() in text]
+def _target_name(
+    world, command_text: str, first_estimate_world: np.ndarray | None, start: dict[str, np.ndarray]
+) -> str:
+    """Evaluation only: the object the command meant: the longest scene prompt the object phrase contains;
+    else, among the objects whose prompt's noun it names ("the brown carton" -> every carton), the one that
+    moved most since the start (the one the loop acted on) when any moved more than 2 cm; else the object
+    nearest the first estimate."""
+    head = _object_phrase(command_text)
+    named = _named_in(world, head)
     if named:
         return max(named, key=lambda o: len(o.prompt)).name
+    words = set(head.split())
+    same = [o for o in world.objects if o.prompt and o.prompt.lower().split()[-1] in words]
+    moved = {
+        o.name: float(np.linalg.norm(world.T_world_obj(o.name)[:3, 3] - start[o.name][:3, 3])) for o in same
+    }
+    if moved and max(moved.values()) > 0.02:
+        return max(moved, key=lambda n: moved[n])
     if first_estimate_world is None:
         raise InvalidInputError(
             f"no scene object's prompt appears in {command_text!r} and nothing was estimated"
         )
-    d = [np.linalg.norm(world.T_world_obj(o.name)[:3, 3] - first_estimate_world) for o in world.objects]
-    return world.objects[int(np.argmin(d))].name
+    pool = same or list(world.objects)
+    d = [np.linalg.norm(world.T_world_obj(o.name)[:3, 3] - first_estimate_world) for o in pool]
+    return pool[int(np.argmin(d))].name
+
+
+def _object_phrase(command_text: str) -> str:
+    """The command up to its place preposition, lower case ("put the can in the bin" -> "put the can")."""
+    text = " " + command_text.lower().replace(",", " ") + " "
+    for prep in (" on top of ", " onto ", " into ", " inside ", " in ", " on ", " to "):
+        text = text.split(prep)[0]
+    return text.strip()
+
+
+def _named_in(world, text: str) -> list:
+    text = text.lower()
+    return [o for o in world.objects if o.prompt and o.prompt.lower() in text]
+
+
+def target_name_for(world, command_text: str) -> str:
+    """Evaluation and oracle inputs only (ground truth): the object a command means before anything is
+    estimated: the longest scene prompt it contains; else, among objects whose prompt's noun it names ("the
+    brown carton" -> cartons), the one on top (highest centre), nearest the arm's base on a tie."""
+    head = _object_phrase(command_text)
+    named = _named_in(world, head)
+    if named:
+        return max(named, key=lambda o: len(o.prompt)).name
+    words = set(head.replace(",", " ").split())
+    same = [o for o in world.objects if o.prompt and o.prompt.lower().split()[-1] in words]
+    if not same:
+        raise InvalidInputError(f"no scene object's prompt or noun appears in {command_text!r}")
+    base = world.T_world_base[:3, 3]
+
+    def key(o):
+        t = world.T_world_obj(o.name)[:3, 3]
+        return (round(float(t[2]), 2), -float(np.linalg.norm(t[:2] - base[:2])))
+
+    return max(same, key=key).name
 
 
 def evaluate_target(world, name: str, T_world_obj_start: np.ndarray) -> dict[str, Any]:
@@ -151,11 +197,12 @@ def run_episode(
     out_dir: str | Path | None = None,
     seed: int | None = None,
     video: bool = False,
-    camera: str = "front",
+    camera: str | None = None,
     estimator: Any = None,
     config: PickConfig | None = None,
     on_event: Callable[[ProgressEvent], None] | None = None,
     camera_wrapper: Callable[[Any], Any] | None = None,
+    estimator_wrapper: Callable[[Any, str], Any] | None = None,
 ) -> EpisodeResult:
     """Build the scene, run the library's closed loop on it, then evaluate against ground truth.
 
@@ -163,16 +210,24 @@ def run_episode(
         scene: scene file; command: free text; out_dir: where to write (None: write nothing).
         seed: placement / appearance / sensor-noise seed (default: the file's).
         video: also write `episode.mp4`.
-        camera: the fixed camera the loop observes with.
+        camera: the fixed camera the loop observes with (default: the scene file's first fixed camera).
         estimator: default `ProMPose.default()`.
         config: `PickConfig`; on_event: progress callback.
         camera_wrapper: wraps the `SimCamera` (fault injection in tests: dropped frames, depth holes).
+        estimator_wrapper: (world, camera name) -> the estimator the loop uses, built around `estimator`
+            (benchmarks: `sim.bench_pick.OracleMaskEstimator`, named oracle).
     """
     from prompose_grasp.perception.estimator import ProMPose
 
     t_wall = time.perf_counter()
     estimator = estimator or ProMPose.default()
-    world = load_world(scene, seed=seed)
+    spec = load_scene(scene)
+    if camera is None:
+        fixed = [c["name"] for c in spec.cameras if "pose" in c]
+        if not fixed:
+            raise InvalidInputError(f"scene {scene} has no fixed camera to observe with")
+        camera = fixed[0]
+    world = build_scene(spec, seed=seed)
     with world:
         info = world.robot
         if info is None or info.gripper is None:
@@ -187,11 +242,12 @@ def run_episode(
         with arm, gripper, sim_cam:
             keeper = _KeepFrames(camera_wrapper(sim_cam) if camera_wrapper is not None else sim_cam)
             cam = keeper
+            loop_estimator = estimator if estimator_wrapper is None else estimator_wrapper(world, camera)
             pnp = PickAndPlace(
                 arm,
                 gripper,
                 cam,
-                estimator,
+                loop_estimator,
                 info.robot,
                 info.gripper,
                 place_targets=place_targets_of(world),
@@ -212,7 +268,7 @@ def run_episode(
             first_world = (
                 world.T_world_base @ np.append(first.pose.transformed(outcome.T_base_cams[0]).t, 1.0)
             )[:3]
-        name = _target_name(world, command, first_world)
+        name = _target_name(world, command, first_world, start)
         ev = evaluate_target(world, name, start[name])
         lifted = ev["lift_height_m"] >= MIN_LIFT_M
         gt_cam = None
@@ -226,7 +282,29 @@ def run_episode(
             gt_cam = Pose9D(T_cam_obj[:3, :3], T_cam_obj[:3, 3], np.asarray(size, dtype=np.float64))
         action = outcome.command.action if outcome.command is not None else None
         success = outcome.success and (lifted if action == "pick" else True)
-        if action in ("place", "stack") and outcome.command is not None:
+        if (
+            action in ("place", "stack")
+            and outcome.command is not None
+            and outcome.command.target == "object"
+        ):
+            holders = _named_in(world, outcome.command.target_prompt)
+            if holders:
+                holder = max(holders, key=lambda o: len(o.prompt))
+                T_h = world.T_world_obj(holder.name)
+                size_h = next(g.size_m for g in world.ground_truth(camera) if g.name == holder.name)
+                p = invert_T(T_h) @ np.append(ev["end_world_m"], 1.0)  # holder frame: +y up
+                inside = bool(
+                    abs(p[0]) <= size_h[0] / 2 + 0.01
+                    and abs(p[2]) <= size_h[2] / 2 + 0.01
+                    and -size_h[1] / 2 < p[1] < size_h[1] / 2 + 0.3
+                )
+                ev["place_object"] = holder.name
+                ev["inside_target"] = inside
+                success = outcome.success and inside
+            else:
+                ev["inside_target"] = None  # the place phrase names no scene object: not judged
+                success = False
+        elif action in ("place", "stack") and outcome.command is not None:
             support = next(
                 (s for s in world.place_targets.values() if s.kind == outcome.command.target), None
             )

@@ -115,7 +115,8 @@ _OBJECT_KEYS = (
     "fixed", "density_kg_m3",
 )  # fmt: skip
 _PLACE_KEYS = ("support", "region", "orientation", "margin_m")
-_STACK_KEYS = ("support", "rows", "cols", "layers", "gap_m", "at_m")
+_STACK_KEYS = ("support", "rows", "cols", "layers", "gap_m", "at_m", "jitter_m", "yaw_jitter_deg")
+_PATTERN_KEYS = ("rows", "cols", "layers", "gap_m")
 _POSE_KEYS = ("pos", "rpy_deg", "quat_wxyz", "look_at")
 
 
@@ -196,9 +197,13 @@ def _parse_mesh(d: Any, where: str) -> Mapping[str, Any]:
             raise UnknownNameError("object family", d["family"], sorted(FAMILIES))
         params = d.get("params", {}) or {}
         known = FAMILIES[d["family"]].ranges
-        for key in params:
+        for key, value in params.items():
             if key not in known:
                 raise UnknownNameError(f"parameter of family {d['family']!r} in {where}", key, sorted(known))
+            if isinstance(value, list | tuple):  # [lo, hi]: drawn per seed
+                lo, hi = _vec(value, 2, f"{where}.params.{key}")
+                if not lo <= hi:
+                    raise InvalidInputError(f"{where}.params.{key}: a range [lo, hi] needs lo <= hi")
     if "symmetry" in d and d["symmetry"] not in SYMMETRIES:
         raise UnknownNameError("symmetry", d["symmetry"], SYMMETRIES)
     return d
@@ -348,7 +353,11 @@ def _asset(o: Mapping[str, Any], base: Path, rng: np.random.Generator) -> Object
     mesh = _parse_mesh(o["mesh"], "mesh")
     scale = np.broadcast_to(np.asarray(o.get("scale", 1.0), dtype=np.float64), (3,))
     if "family" in mesh:
-        asset = make_object(mesh["family"], mesh.get("params") or {}, rng=rng)
+        params = {
+            k: (rng.uniform(float(v[0]), float(v[1])) if isinstance(v, list | tuple) else v)
+            for k, v in (mesh.get("params") or {}).items()
+        }
+        asset = make_object(mesh["family"], params, rng=rng)
         if np.allclose(scale, 1.0):
             return asset
         parts = [m.copy() for m in asset.parts]
@@ -478,7 +487,7 @@ def build_scene(spec: SceneSpec, seed: int | None = None, settle: bool | None = 
             if "pose" in o:
                 place(name, asset, o, parse_pose(o["pose"], "object.pose"))
             elif stack is not None:
-                place(name, asset, o, _stack_pose(asset, supports[stack["support"]], stack, k))
+                place(name, asset, o, _stack_pose(asset, supports[stack["support"]], stack, k, rng))
             elif o["place"].get("orientation", "upright") == "random":
                 drops.append((name, asset, o))
             else:
@@ -565,8 +574,17 @@ def build_scene(spec: SceneSpec, seed: int | None = None, settle: bool | None = 
     return world
 
 
-def _stack_pose(asset: ObjectAsset, support: Support, stack: Mapping[str, Any], k: int) -> np.ndarray:
-    """Pose of the k-th box of a rows x cols x layers stack centred on the support (row-major, bottom up)."""
+def _stack_pose(
+    asset: ObjectAsset,
+    support: Support,
+    stack: Mapping[str, Any],
+    k: int,
+    rng: np.random.Generator | None = None,
+) -> np.ndarray:
+    """Pose of the k-th box of a rows x cols x layers stack centred on `at_m` of the support (row-major,
+    bottom up). With `jitter_m` / `yaw_jitter_deg` each box is shifted by up to that much along x and y and
+    turned by up to that much about the vertical, drawn from `rng` (a stack stacked by hand, different per
+    seed); the jitter is kept below half the gap plus 2 mm per side so neighbours barely touch at most."""
     rows, cols = int(stack.get("rows", 1)), int(stack.get("cols", 1))
     gap = float(stack.get("gap_m", 0.005))
     at = np.asarray(stack.get("at_m", (0.0, 0.0)), dtype=np.float64)
@@ -577,6 +595,13 @@ def _stack_pose(asset: ObjectAsset, support: Support, stack: Mapping[str, Any], 
     y = at[1] + (r - (rows - 1) / 2.0) * sy
     R_up = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # obj +y -> surface +z
     t = np.array([x, y, layer * (sz + 0.001) + sz / 2.0 + 0.001])
+    jitter = min(float(stack.get("jitter_m", 0.0)), gap / 2.0 + 0.002)
+    yaw_jitter = math.radians(float(stack.get("yaw_jitter_deg", 0.0)))
+    if rng is not None and (jitter > 0 or yaw_jitter > 0):
+        t[:2] += rng.uniform(-jitter, jitter, 2)
+        yaw = rng.uniform(-yaw_jitter, yaw_jitter)
+        c, s = math.cos(yaw), math.sin(yaw)
+        R_up = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ R_up
     if abs(x) + asset.size[0] / 2 > support.half_extents_xy_m[0] + 0.05 or abs(y) + asset.size[2] / 2 > (
         support.half_extents_xy_m[1] + 0.05
     ):

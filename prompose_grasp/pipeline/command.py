@@ -8,8 +8,9 @@ A small grammar does the structure; the sentence embedding does the vocabulary:
   "drop", "set", "put" -> place; "pile up" -> stack), so synonyms work without a word list;
 - the object phrase is passed to grounding as is ("the red mug left of the bowl");
 - the target phrase after the first place preposition ("in", "into", "on", "onto", "to", "inside", "on top
-  of", "onto the top of") is matched against the known place targets (bin, table, pallet, conveyor, ...),
-  again by similarity, so "crate" or "tote" still finds the bin.
+  of") is a fixture of the cell when its head noun names one ("the blue bin", "the tote", "the conveyor
+  belt": `PLACE_TARGETS`); otherwise it names an object to put things in or on ("the white bowl", "the tea
+  box"), which the pipeline grounds in the image like the object to pick (`Command.target == "object"`).
 
 A command that names no object, or whose verb or target matches nothing well enough, raises
 `CommandNotUnderstood` with the parts that were understood and examples of what works.
@@ -49,15 +50,18 @@ ACTIONS: dict[str, tuple[str, ...]] = {
 
 #: place target kind -> phrases that name it.
 PLACE_TARGETS: dict[str, tuple[str, ...]] = {
-    "bin": ("bin", "box", "tote", "crate", "container", "basket", "bucket"),
+    "bin": ("bin", "tote", "crate", "container", "basket", "bucket"),
     "table": ("table", "desk", "counter", "workbench", "surface"),
     "pallet": ("pallet", "skid", "wooden pallet"),
     "conveyor": ("conveyor", "conveyor belt", "belt", "line"),
 }
 
 _PREPOSITIONS = ("on top of", "onto", "into", "inside", "in", "on", "to")
-_PLACE_SPLIT = re.compile(r"\s+(?:" + "|".join(p.replace(" ", r"\s+") for p in _PREPOSITIONS) + r")\s+")
+_PLACE_SPLIT = re.compile(r"\s+(" + "|".join(p.replace(" ", r"\s+") for p in _PREPOSITIONS) + r")\s+")
+#: prepositions that put an object inside its target (the rest put it on top).
+_INTO = ("into", "inside", "in")
 _POLITE = re.compile(r"^(?:please\s+)?(?:(?:can|could|would)\s+you\s+)?(?:please\s+)?")
+_FROM = re.compile(r"\s+(?:from|off|out of)\s+.*$")
 _ARTICLE = re.compile(r"^(?:the|a|an|all|all the|some|every)\s+")
 #: the longest known verb phrase, in words ("build a stack of").
 _MAX_VERB_WORDS = 4
@@ -85,9 +89,12 @@ class Command:
             onto the target in a pattern).
         object_prompt: what to pick, for grounding ("the red mug left of the bowl").
         plural: the object phrase names several objects ("the cartons", "all boxes").
-        target: place target kind ("bin", "table", "pallet", "conveyor") or None for a plain pick.
+        target: place target kind ("bin", "table", "pallet", "conveyor"), "object" when the target phrase
+            names an object to ground in the image ("the white bowl"), or None for a plain pick.
         target_prompt: the target phrase as written ("the blue bin"), or "".
-        verb_score, target_score: cosine similarities of the verb / target phrase with the best match.
+        verb_score, target_score: cosine similarities of the verb / target phrase with the best match (1.0
+            for an exact word; nan for an object target or none).
+        into: the preposition puts the object inside the target ("in", "into", "inside"), not on top.
     """
 
     text: str
@@ -98,6 +105,7 @@ class Command:
     target_prompt: str
     verb_score: float
     target_score: float
+    into: bool = False
 
 
 def _looks_plural(phrase: str) -> bool:
@@ -111,23 +119,31 @@ def _looks_plural(phrase: str) -> bool:
     )
 
 
+def _fixture_of(phrase: str) -> str | None:
+    """The fixture kind whose words name the phrase's head noun ("the blue bin" -> bin, "conveyor belt" ->
+    conveyor), or None."""
+    words = phrase.split()
+    for n in (2, 1):  # two-word names first ("conveyor belt", "wooden pallet")
+        tail = " ".join(words[-n:])
+        for kind, phrases in PLACE_TARGETS.items():
+            if tail in phrases:
+                return kind
+    return None
+
+
 class CommandParser:
     """Parses commands with the shared MiniLM encoder (loaded on first use).
 
     Args:
         text_encoder: any `perception.text.TextEncoder`; default: the shared MiniLM.
-        min_verb_score, min_target_score: below these cosine similarities a verb or target is "not
-            understood". MiniLM puts unrelated short phrases at 0.0-0.35 and synonyms at 0.5-1.0 (measured on
-            the phrases of `ACTIONS` and `PLACE_TARGETS` against each other and against object nouns); 0.45
-            sits between.
+        min_verb_score: below this cosine similarity a verb is "not understood". MiniLM puts unrelated short
+            phrases at 0.0-0.35 and synonyms at 0.5-1.0 (measured on the phrases of `ACTIONS` against each
+            other and against object nouns); 0.45 sits between.
     """
 
-    def __init__(
-        self, text_encoder: Any | None = None, min_verb_score: float = 0.45, min_target_score: float = 0.45
-    ):
+    def __init__(self, text_encoder: Any | None = None, min_verb_score: float = 0.45):
         self._encoder = text_encoder
         self.min_verb_score = min_verb_score
-        self.min_target_score = min_target_score
         self._tables: dict[str, tuple[list[str], np.ndarray]] = {}
 
     def _best(self, phrase: str, table: dict[str, tuple[str, ...]], name: str) -> tuple[str, float]:
@@ -170,21 +186,26 @@ class CommandParser:
             raise CommandNotUnderstood(self._explain(text, "the command is empty"))
         clean = _POLITE.sub("", " ".join(re.sub(r"[^\w\s'-]", " ", text.lower()).split()))
         parts = _PLACE_SPLIT.split(clean, maxsplit=1)
-        head, target_phrase = parts[0], (parts[1] if len(parts) > 1 else "")
+        head, target_phrase = parts[0], (parts[2] if len(parts) > 2 else "")
+        into = len(parts) > 2 and parts[1] in _INTO
         words = head.split()
         action, verb_score, n_verb = self._verb(words)
         if verb_score < self.min_verb_score:
             raise CommandNotUnderstood(self._explain(text, f"no known action in {' '.join(words[:2])!r}"))
-        object_prompt = " ".join(words[n_verb:]).strip()
+        # "the cartons from the pallet": where they are now is no part of what they are
+        object_prompt = _FROM.sub("", " ".join(words[n_verb:])).strip()
         if not object_prompt:
             raise CommandNotUnderstood(self._explain(text, "it names no object to pick"))
         target, target_score = None, float("nan")
         if target_phrase:
-            target, target_score = self._best(_ARTICLE.sub("", target_phrase), PLACE_TARGETS, "targets")
-            if target_score < self.min_target_score:
-                raise CommandNotUnderstood(
-                    self._explain(text, f"the place {target_phrase!r} is none of: {', '.join(PLACE_TARGETS)}")
-                )
+            phrase = _ARTICLE.sub("", target_phrase + " ").strip()
+            if not phrase:
+                raise CommandNotUnderstood(self._explain(text, "it names no place after the preposition"))
+            fixture = _fixture_of(phrase)
+            if fixture is not None:
+                target, target_score = fixture, 1.0
+            else:  # an object to put it in or on ("the white bowl"): grounded in the image by the pipeline
+                target, target_score = "object", float("nan")
             if action == "pick":
                 action = "place"
         elif action in ("place", "stack"):
@@ -200,6 +221,7 @@ class CommandParser:
             target_prompt=target_phrase,
             verb_score=verb_score,
             target_score=target_score,
+            into=into,
         )
 
     @staticmethod

@@ -11,7 +11,8 @@ from prompose_grasp.errors import InvalidInputError
 
 __all__ = ["REASONS", "STAGES", "AttemptRecord", "PickOutcome", "ProgressEvent", "Reason"]
 
-#: Why a run ended. "success" is the only good one; the others say which stage gave up.
+#: Why a run ended. "success" is the only good one; the others say which stage gave up ("not_understood":
+#: the command text could not be parsed; the message says what was understood and gives examples).
 Reason = Literal[
     "success",
     "not_found",
@@ -21,6 +22,7 @@ Reason = Literal[
     "collision",
     "timeout",
     "camera_failed",
+    "not_understood",
 ]
 REASONS: tuple[str, ...] = get_args(Reason)
 #: Stages a `ProgressEvent` can name, in the order a run goes through them.
@@ -86,6 +88,8 @@ class PickOutcome:
         grasp: the grasp that held the object, or None.
         place: the `PlacePose` used, or None.
         timings_s: wall time per stage {"observe", "estimate", "plan", "execute", "verify", "total"} [s].
+        objects_done: objects picked (and placed) in this run: 0 or 1, more for a plural command ("move the
+            cartons ...": one object after the other until none is left or `PickConfig.max_objects`).
     """
 
     reason: str
@@ -97,6 +101,7 @@ class PickOutcome:
     grasp: Any = None
     place: Any = None
     timings_s: dict[str, float] = field(default_factory=dict)
+    objects_done: int = 0
 
     def __post_init__(self) -> None:
         if self.reason not in REASONS:
@@ -131,7 +136,12 @@ class PickOutcome:
                 "action": self.command.action,
                 "object_prompt": self.command.object_prompt,
                 "target": self.command.target,
+                "target_prompt": self.command.target_prompt,
             },
+            "place": None
+            if self.place is None
+            else {"T_base_obj": np.asarray(self.place.T_base_obj).tolist(), "reason": self.place.reason},
+            "objects_done": self.objects_done,
             "n_estimates": len(self.estimates),
             "estimate_cam": None if est is None else {**est.pose.to_dict(), "prior": est.prior.name},
             "attempts": [

@@ -14,13 +14,22 @@ Every expected failure ends the run with a typed reason (`PickOutcome.reason`) i
 
 | reason | when |
 |---|---|
+| not_understood | the command text could not be parsed (the message says what was understood, and examples) |
 | camera_failed | the camera raised `CameraError` on every retry, or its frames carry no `T_base_cam` |
-| not_found | the command names nothing understood, or the estimator finds no object matching the prompt |
+| not_found | the estimator finds no object matching the prompt (or no place target the command names) |
 | no_feasible_grasp | every grasp (or place) candidate was rejected for collisions, stroke, support, ... |
 | ik_failed | the candidates failed mostly on reach, or the arm refused every motion (validator / IK) |
 | collision | every feasible grasp's approach path collides with the observed scene |
 | slipped | the gripper closed on nothing or lost the object, on every attempt |
 | timeout | `PickConfig.timeout_s` passed (checked between stages; a running move is never cut) |
+
+Which object: the estimator's candidates for the prompt whose grounding score is within `candidate_ratio` of
+the best are all "the object" (identical cartons on a pallet); they are tried from the highest top down (what
+lies on top of a pile first), skipping any already at the place target, and the first with a feasible grasp
+is picked. A plural command ("move the cartons to the conveyor") repeats pick-and-place until no such object
+is left (or `max_objects`). A place target that names no fixture of the cell ("in the white bowl", "on the tea
+box") is grounded in the image like the object: the named object's estimated box becomes a bin (into) or a
+surface (onto).
 
 Every motion goes through the `Arm`'s own methods, which validate it (`CommandValidator`) before moving; a
 refused command raises in the arm and leaves it still, and the loop counts it as a failed attempt.
@@ -28,11 +37,12 @@ refused command raises in the arm and leaves it still, and the loop counts it as
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -49,6 +59,7 @@ from prompose_grasp.errors import (
     UnsafeCommandError,
 )
 from prompose_grasp.geometry.pointcloud import back_project
+from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.geometry.se3 import transform_points
 from prompose_grasp.grasp import (
     GraspConfig,
@@ -87,12 +98,22 @@ class PickConfig:
         timeout_s: wall-time budget of a run [s].
         joint_speed_rad_s, joint_accel_rad_s2: free moves to the pre-grasp [rad/s, rad/s^2].
         linear_speed_m_s, linear_accel_m_s2: approach and lift lines [m/s, m/s^2].
-        grip_force_n: jaw force per finger / suction holding force [N].
+        grip_force_n: jaw force per finger [N] (suction holds with the cup's full `max_force_n`).
         min_jaw_width_m: jaws closed narrower than this held nothing [m] (the 2F-85 class stops at 0).
         moved_min_m: on re-observation the object counts as picked when its estimate moved more than this
             (or is no longer seen where it stood) [m]; half the default 10 cm lift.
         max_scene_points: observed points handed to the collision scene (evenly thinned) [-].
         reobserve: re-observe after the lift to confirm the pick.
+        open_margin_m: the jaws open to the grasp's planned opening plus this before the approach (not the
+            full stroke: a narrower hand fits between neighbours) [m].
+        candidates: estimator candidates considered per observation (estimators with `estimate_all`).
+        candidate_ratio: candidates scoring at least this fraction of the best one count as the object [-].
+        max_objects: objects moved by one plural command at most.
+        lift_clearance_m: the lift after a grasp rises at least the object's estimated height plus this, so
+            the held object clears what stood beside it (cartons in a layer) [m].
+        max_lift_m: ... but at most this [m].
+        pad_depth_margin_m: jaw grasps with the pads' centre this much deeper than half a pad inside the
+            estimated box are tried first (robust to the estimate's ~1 cm error) [m].
         grasp: `GraspConfig` of the planner.
     """
 
@@ -110,6 +131,13 @@ class PickConfig:
     moved_min_m: float = 0.05
     max_scene_points: int = 40000
     reobserve: bool = True
+    open_margin_m: float = 0.01
+    candidates: int = 4
+    candidate_ratio: float = 0.9
+    max_objects: int = 12
+    lift_clearance_m: float = 0.03
+    max_lift_m: float = 0.35
+    pad_depth_margin_m: float = 0.01
     grasp: GraspConfig | None = None
 
     def __post_init__(self) -> None:
@@ -119,6 +147,8 @@ class PickConfig:
             "camera_retries",
             "observe_frames",
             "max_scene_points",
+            "candidates",
+            "max_objects",
         )
         for name in ints:
             if int(getattr(self, name)) < 1:
@@ -131,6 +161,11 @@ class PickConfig:
             "linear_accel_m_s2",
             "grip_force_n",
             "moved_min_m",
+            "open_margin_m",
+            "candidate_ratio",
+            "lift_clearance_m",
+            "max_lift_m",
+            "pad_depth_margin_m",
         )
         for name in floats:
             v = float(getattr(self, name))
@@ -149,11 +184,15 @@ class _Abort(Exception):
 
 @dataclass(frozen=True, eq=False)
 class _Observation:
+    """One observation of the target: the frame, the estimate chosen, the target in `base`, the support
+    plane, the observed points in `base` [m], and the other candidates (tried when this one has no grasp)."""
+
     frame: RGBDFrame
     estimate: Any
     target: ObjectModel
     support: Plane | None
     points_base: np.ndarray
+    q_seen: np.ndarray
 
 
 class PickAndPlace:
@@ -161,12 +200,14 @@ class PickAndPlace:
 
     Args:
         arm: the arm (validates its own commands).
-        gripper: the gripper matching `gripper_kind`.
+        gripper: the gripper matching `gripper_kind`. A parallel-jaw gripper with an `open_to(width_m)`
+            method opens only as wide as each grasp needs (`PickConfig.open_margin_m`); otherwise fully.
         camera: a fixed (or any calibrated) camera whose frames carry `T_base_cam`.
-        estimator: `ProMPose` (or anything with `estimate(frame, prompt)` and `track(frames, prompt)`).
+        estimator: `ProMPose` (or anything with `estimate(frame, prompt)` and `track(frames, prompt)`;
+            `estimate_all(frame, prompt, max_objects=)` when present gives the alternative candidates).
         robot_model: the arm's `RobotModel` with the gripper's tcp offset.
         gripper_kind: "parallel_jaw" or "suction".
-        place_targets: {kind: PlaceTarget} for place commands ("bin", "table", "pallet", "conveyor").
+        place_targets: {kind: PlaceTarget} fixtures for place commands ("bin", "table", "pallet", "conveyor").
         config: `PickConfig`.
         on_event: called with each `ProgressEvent` (a live display).
         parser: the command parser (default: `CommandParser()`, MiniLM loaded on first use).
@@ -211,6 +252,8 @@ class PickAndPlace:
             "attempts": [],
             "grasp": None,
             "place": None,
+            "done": 0,
+            "placed": [],  # ObjectModels of what this run put down (obstacles for the next place)
         }
         cmd: Command | None = None
 
@@ -228,33 +271,61 @@ class PickAndPlace:
                 grasp=state["grasp"],
                 place=state["place"],
                 timings_s=dict(timings),
+                objects_done=int(state["done"]),
             )
 
         try:
             cmd = self._parse(command)
-            target = None
-            if cmd.action in ("place", "stack"):
-                target = self.place_targets.get(cmd.target or "")
-                if target is None:
+            fixture = None
+            if cmd.action in ("place", "stack") and cmd.target != "object":
+                fixture = self.place_targets.get(cmd.target or "")
+                if fixture is None:
                     known = ", ".join(sorted(self.place_targets)) or "none configured"
                     raise _Abort("not_found", f"no place target {cmd.target!r} (known: {known})")
-            last = _Abort("not_found", "no attempt was made")
             q_home = np.asarray(self.arm.joint_positions(), dtype=np.float64)
-            for round_ in range(self.config.max_estimates):
-                self._check_time(t_start)
-                obs = self._observe_and_estimate(cmd.object_prompt, timings, state, round_)
+            n_objects = self.config.max_objects if cmd.plural else 1
+            for k in range(n_objects):
                 try:
-                    self._attempt_round(obs, cmd, target, timings, state, t_start)
-                    return finish("success", self._success_message(cmd, state))
+                    self._one_object(cmd, fixture, q_home, timings, state, t_start)
                 except _Abort as exc:
-                    if exc.reason in ("timeout", "camera_failed"):
-                        raise
-                    last = exc
-                    logger.info("round %d failed: %s (%s)", round_ + 1, exc.reason, exc.message)
+                    # A plural command ends well when nothing more is found after at least one object.
+                    if k > 0 and exc.reason == "not_found":
+                        break
+                    raise
+                state["done"] += 1
+                if k + 1 < n_objects:
                     self._go_home(q_home)
-            raise last
+            return finish("success", self._success_message(cmd, state))
         except _Abort as exc:
             return finish(exc.reason, exc.message)
+
+    def _one_object(
+        self,
+        cmd: Command,
+        fixture: PlaceTarget | None,
+        q_home: np.ndarray,
+        timings: dict[str, float],
+        state: dict[str, Any],
+        t_start: float,
+    ) -> None:
+        """Observe-estimate-plan-execute rounds for one object until it is held (and placed)."""
+        last = _Abort("not_found", "no attempt was made")
+        for round_ in range(self.config.max_estimates):
+            self._check_time(t_start)
+            observations, frame = self._observe_candidates(cmd, fixture, timings, state, round_)
+            place_target = fixture
+            if cmd.action in ("place", "stack") and fixture is None:
+                place_target = self._ground_place_target(cmd, frame, observations[0], timings, state)
+            try:
+                self._attempt_round(observations, cmd, place_target, timings, state, t_start)
+                return
+            except _Abort as exc:
+                if exc.reason in ("timeout", "camera_failed"):
+                    raise
+                last = exc
+                logger.info("round %d failed: %s (%s)", round_ + 1, exc.reason, exc.message)
+                self._go_home(q_home)
+        raise last
 
     # ------------------------------------------------------------------------------------------- stages
     def _emit(self, stage: str, message: str, fraction: float, attempt: int = 0) -> None:
@@ -274,10 +345,8 @@ class PickAndPlace:
             self.parser = CommandParser()
         try:
             return self.parser.parse(command)
-        except CommandNotUnderstood as exc:
-            raise _Abort("not_found", f"command not understood: {exc}") from None
-        except InvalidInputError as exc:
-            raise _Abort("not_found", f"command not understood: {exc}") from None
+        except (CommandNotUnderstood, InvalidInputError) as exc:
+            raise _Abort("not_understood", str(exc)) from None
 
     def _capture(self) -> RGBDFrame:
         errors = []
@@ -298,61 +367,161 @@ class PickAndPlace:
             f"{self.config.camera_retries} captures failed; last: {errors[-1] if errors else '?'}",
         )
 
-    def _estimate(self, prompt: str, timings: dict[str, float]) -> tuple[RGBDFrame, Any]:
+    def _estimates(self, prompt: str, timings: dict[str, float]) -> tuple[RGBDFrame, list[Any]]:
+        """Capture `observe_frames` frames and estimate the prompt: the candidates, best first (one with a
+        tracker over several frames or an estimator without `estimate_all`)."""
         t0 = time.perf_counter()
         frames = [self._capture() for _ in range(self.config.observe_frames)]
         timings["observe"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         try:
-            if len(frames) == 1:
-                est = self.estimator.estimate(frames[0], prompt)
+            if len(frames) > 1:
+                ests = [list(self.estimator.track(frames, prompt))[-1]]
+            elif hasattr(self.estimator, "estimate_all") and self.config.candidates > 1:
+                n = self.config.candidates
+                ests = list(self.estimator.estimate_all(frames[0], prompt, max_objects=n))
+                if not ests:
+                    raise ObjectNotFoundError(f"no object in the frame matches {prompt!r}")
             else:
-                est = list(self.estimator.track(frames, prompt))[-1]
+                ests = [self.estimator.estimate(frames[0], prompt)]
         except ObjectNotFoundError as exc:
             raise _Abort("not_found", str(exc)) from None
         except InvalidInputError as exc:  # e.g. a depth image without a single reading
             raise _Abort("not_found", f"the frame cannot be used: {exc}") from None
         finally:
             timings["estimate"] += time.perf_counter() - t0
-        return frames[-1], est
+        return frames[-1], ests
 
-    def _observe_and_estimate(
-        self, prompt: str, timings: dict[str, float], state: dict[str, Any], round_: int
-    ) -> _Observation:
-        frac = round_ / self.config.max_estimates
-        self._emit("observe", f"observing ({self.config.observe_frames} frame(s))", 0.05 + 0.9 * frac)
-        frame, est = self._estimate(prompt, timings)
-        T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
-        state["estimates"].append(est)
-        state["T_base_cams"].append(T_base_cam)
+    def _estimate(self, prompt: str, timings: dict[str, float]) -> tuple[RGBDFrame, Any]:
+        frame, ests = self._estimates(prompt, timings)
+        return frame, ests[0]
+
+    def _to_base(self, est: Any, T_base_cam: np.ndarray, name: str) -> tuple[ObjectModel, Plane | None]:
         pose_base = est.pose.transformed(T_base_cam)
-        self._emit(
-            "estimate",
-            f"{prompt!r}: {est.prior.name} at {np.round(pose_base.t, 3).tolist()} m, "
-            f"size {np.round(pose_base.size, 3).tolist()} m",
-            0.15 + 0.9 * frac,
-        )
-        mesh = est.mesh_cam.copy()
-        mesh.apply_transform(T_base_cam)
-        target = ObjectModel(
-            "target", pose_base, mesh=mesh, family=est.prior.name, symmetry=est.prior.symmetry
-        )
+        mesh = None
+        if getattr(est, "mesh_cam", None) is not None:
+            mesh = est.mesh_cam.copy()
+            mesh.apply_transform(T_base_cam)
+        target = ObjectModel(name, pose_base, mesh=mesh, family=est.prior.name, symmetry=est.prior.symmetry)
         support = None
         if est.support_plane is not None:
             support = Plane.from_camera(est.support_plane.normal_cam, est.support_plane.offset_m, T_base_cam)
+        return target, support
+
+    def _observe_candidates(
+        self,
+        cmd: Command,
+        fixture: PlaceTarget | None,
+        timings: dict[str, float],
+        state: dict[str, Any],
+        round_: int,
+    ) -> tuple[list[_Observation], RGBDFrame]:
+        """Observe and estimate; the candidates that count as the object, in the order they are tried."""
+        frac = round_ / self.config.max_estimates
+        q_seen = np.asarray(self.arm.joint_positions(), dtype=np.float64)
+        self._emit("observe", f"observing ({self.config.observe_frames} frame(s))", 0.05 + 0.9 * frac)
+        frame, ests = self._estimates(cmd.object_prompt, timings)
+        T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
         points = transform_points(T_base_cam, back_project(frame.depth_m, frame.intrinsics))
         stride = max(1, len(points) // self.config.max_scene_points)
-        return _Observation(frame, est, target, support, points[::stride])
+        points = points[::stride]
+        best = max(float(getattr(e, "score", 1.0)) for e in ests)
+        observations = []
+        for est in ests:
+            if float(getattr(est, "score", 1.0)) < self.config.candidate_ratio * best:
+                continue
+            target, support = self._to_base(est, T_base_cam, "target")
+            if fixture is not None and _at_target(target, fixture):
+                continue  # already where the command wants it
+            observations.append(_Observation(frame, est, target, support, points, q_seen))
+        if not observations:
+            raise _Abort("not_found", f"every {cmd.object_prompt!r} in view is already on the {cmd.target}")
+        # What lies on top first (the top layer of a stack): highest top along the support normal.
+        observations.sort(key=lambda o: -_top_height(o.target, o.support))
+        chosen = observations[0]
+        state["estimates"].append(chosen.estimate)
+        state["T_base_cams"].append(T_base_cam)
+        pose_base = chosen.target.pose
+        self._emit(
+            "estimate",
+            f"{cmd.object_prompt!r}: {chosen.estimate.prior.name} at {np.round(pose_base.t, 3).tolist()} m, "
+            f"size {np.round(pose_base.size, 3).tolist()} m ({len(observations)} candidate(s))",
+            0.15 + 0.9 * frac,
+        )
+        return observations, frame
+
+    def _ground_place_target(
+        self,
+        cmd: Command,
+        frame: RGBDFrame,
+        obs: _Observation,
+        timings: dict[str, float],
+        state: dict[str, Any],
+    ) -> PlaceTarget:
+        """The object the target phrase names, grounded in `frame`, as a place target: a bin when the command
+        says "in" or the object is a container (bowl, cup, mug, bin, basket), else the surface of its top."""
+        t0 = time.perf_counter()
+        prompt = cmd.target_prompt
+        try:
+            est = self.estimator.estimate(frame, prompt)
+        except ObjectNotFoundError as exc:
+            raise _Abort("not_found", f"place target: {exc}") from None
+        except InvalidInputError as exc:
+            raise _Abort("not_found", f"place target {prompt!r}: {exc}") from None
+        finally:
+            timings["estimate"] += time.perf_counter() - t0
+        T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
+        obj, support = self._to_base(est, T_base_cam, "place target")
+        if np.linalg.norm(obj.pose.t - obs.target.pose.t) < 0.02:
+            raise _Abort("not_found", f"the place {prompt!r} is the object to pick itself")
+        up = np.array([0.0, 0.0, 1.0]) if support is None else np.asarray(support.normal)
+        R = obj.pose.R
+        # The object axis nearest the support normal is its height; the other two span its footprint.
+        k_up = int(np.argmax(np.abs(R.T @ up)))
+        others = [i for i in range(3) if i != k_up]
+        x_axis = R[:, others[0]] - (R[:, others[0]] @ up) * up
+        x_axis /= np.linalg.norm(x_axis)
+        y_axis = np.cross(up, x_axis)
+        half_xy = obj.pose.size[others] / 2.0
+        height = float(obj.pose.size[k_up])
+        container = cmd.into or est.prior.name in _CONTAINERS
+        top = obj.pose.t + 0.5 * height * up
+        if container:
+            # The inner floor: a wall of ~8 % of the width each side, the floor ~10 % of the height up.
+            floor = obj.pose.t - 0.5 * height * up + 0.1 * height * up
+            T = np.eye(4)
+            T[:3, :3] = np.column_stack([x_axis, y_axis, up])
+            T[:3, 3] = floor
+            target = PlaceTarget("bin", T, 0.84 * half_xy, 0.9 * height)
+        else:
+            T = np.eye(4)
+            T[:3, :3] = np.column_stack([x_axis, y_axis, up])
+            T[:3, 3] = top
+            target = PlaceTarget("surface", T, half_xy, 0.0)
+        state.setdefault("place_objects", []).append(obj)
+        self._emit(
+            "estimate",
+            f"place target {prompt!r}: {est.prior.name} ({target.kind}) at {np.round(T[:3, 3], 3).tolist()}",
+            0.25,
+        )
+        return target
+
+    def _grasp_config(self, obs: _Observation) -> GraspConfig:
+        """The planner's settings for this target: the lift clears the object's own height."""
+        cfg = self.config.grasp or GraspConfig()
+        height = _height(obs.target, obs.support)
+        lift = min(max(cfg.lift_m, height + self.config.lift_clearance_m), self.config.max_lift_m)
+        return dataclasses.replace(cfg, lift_m=lift) if lift != cfg.lift_m else cfg
 
     def _plan(
         self, obs: _Observation, q_now: np.ndarray, timings: dict[str, float]
     ) -> tuple[Any, CollisionScene]:
         t0 = time.perf_counter()
-        cfg = self.config.grasp or GraspConfig()
+        cfg = self._grasp_config(obs)
         try:
-            scene = build_scene(
-                obs.target, self.robot, self.gripper_geometry, (), obs.support, obs.points_base, q_now, cfg
-            )
+            grip = self.gripper_geometry
+            P = obs.points_base
+            scene = build_scene(obs.target, self.robot, grip, (), obs.support, P, obs.q_seen, cfg)
             plan = plan_grasps(
                 obs.target, self.robot, self.gripper_geometry, q_seed=q_now, config=cfg, scene=scene
             )
@@ -366,7 +535,7 @@ class PickAndPlace:
 
     def _attempt_round(
         self,
-        obs: _Observation,
+        observations: list[_Observation],
         cmd: Command,
         place_target: PlaceTarget | None,
         timings: dict[str, float],
@@ -375,10 +544,28 @@ class PickAndPlace:
     ) -> None:
         q_now = np.asarray(self.arm.joint_positions(), dtype=np.float64)
         self._emit("plan", "planning grasps", 0.3)
-        plan, scene = self._plan(obs, q_now, timings)
+        plan, scene, obs, plan_failure = None, None, observations[0], None
+        for candidate in observations:  # the first candidate with a feasible grasp
+            try:
+                plan, scene = self._plan(candidate, q_now, timings)
+            except _Abort as exc:
+                plan_failure = plan_failure or exc
+                continue
+            obs = candidate
+            break
+        if plan is None or scene is None:
+            raise plan_failure or _Abort("no_feasible_grasp", "no candidate to plan for")
+        if obs is not observations[0]:  # the estimate actually used comes last in the outcome
+            state["estimates"].append(obs.estimate)
+            state["T_base_cams"].append(np.asarray(obs.frame.T_base_cam, dtype=np.float64))
+        grasps = self._robust_first(plan.grasps, obs.target)
+        held_scene = None
+        if place_target is not None:
+            held_scene = self._held_scene(obs, place_target, state, timings)
         failures: list[_Abort] = []
-        for i, grasp in enumerate(plan.grasps[: self.config.grasps_per_estimate]):
+        for i, planned in enumerate(grasps[: self.config.grasps_per_estimate]):
             self._check_time(t_start)
+            grasp = self._pressed(planned)
             n = len(state["attempts"]) + 1
             self._emit(
                 "execute",
@@ -387,11 +574,11 @@ class PickAndPlace:
                 n,
             )
             try:
-                if place_target is None:
+                if place_target is None or held_scene is None:
                     width = self._pick(grasp, scene, timings)
                     self._reobserve(cmd.object_prompt, obs.target, timings, state)
                 else:
-                    width = self._pick_place(obs, grasp, place_target, scene, timings, state, n)
+                    width = self._pick_place(obs, grasp, place_target, scene, held_scene, timings, state, n)
             except _Abort as exc:
                 state["attempts"].append(AttemptRecord(n, grasp, exc.reason, exc.message))
                 if exc.reason in ("timeout", "camera_failed"):
@@ -407,6 +594,33 @@ class PickAndPlace:
             raise _Abort("no_feasible_grasp", "the plan held no grasp")
         raise failures[-1]
 
+    def _held_scene(
+        self, obs: _Observation, target: PlaceTarget, state: dict[str, Any], timings: dict[str, float]
+    ) -> CollisionScene:
+        """The scene for the moves while the object is held and for place planning: the observed points
+        without the object's own (they leave with it), without the place surface's own (the floor of a bin,
+        the deck of a pallet: the object is put down on them) and without the arm's; what this run already
+        put down as boxes; the lower of the pick support and the place surface as the support plane."""
+        t0 = time.perf_counter()
+        P = obs.points_base
+        T_surf = target.T_base_surface
+        local = (P - T_surf[:3, 3]) @ T_surf[:3, :3]
+        on_surface = np.all(np.abs(local[:, :2]) <= target.half_extents_xy_m, axis=1) & (
+            np.abs(local[:, 2]) < _SURFACE_BAND_M
+        )
+        P = P[~on_surface]
+        place_plane = Plane(T_surf[:3, 2], -float(T_surf[:3, 2] @ T_surf[:3, 3]))
+        support = place_plane
+        if obs.support is not None and _plane_z(obs.support) < _plane_z(place_plane):
+            support = obs.support
+        obstacles = [o for o in state["placed"] if not _overlaps(o, obs.target)]
+        cfg = self.config.grasp or GraspConfig()
+        scene = build_scene(
+            obs.target, self.robot, self.gripper_geometry, obstacles, support, P, obs.q_seen, cfg
+        )
+        timings["plan"] += time.perf_counter() - t0
+        return scene
+
     # ---------------------------------------------------------------------------------------- execution
     def _safe(self, what: str, fn: Callable[[], Any]) -> Any:
         """Run one arm command; a refusal by the validator or IK is an "ik_failed" attempt."""
@@ -416,6 +630,53 @@ class PickAndPlace:
             raise _Abort("ik_failed", f"{what}: {exc}") from None
         except UnsafeCommandError as exc:
             raise _Abort("ik_failed", f"{what} refused by the validator: {exc}") from None
+
+    def _robust_first(self, grasps: Sequence[Any], target: ObjectModel) -> list[Any]:
+        """Parallel-jaw grasps whose pads sit at least half a pad plus `pad_depth_margin_m` inside the
+        estimated box (measured from the face the approach enters) first, the rest after, each group in
+        the planner's order: a grasp at the very rim of the estimate misses the object when the estimate's
+        top is a centimetre high (the can's first tries)."""
+        if self.gripper_kind != "parallel_jaw":
+            return list(grasps)
+        pad_half = 0.5 * float(getattr(self.gripper_geometry, "pad_size_m", (0, 0, 0.03))[2])
+        corners = target.pose.corners()
+
+        def deep(g: Any) -> bool:
+            a = g.T_base_tcp[:3, 2]
+            depth = float(np.max((corners - g.T_base_tcp[:3, 3]) @ -a))  # box extent behind the tcp
+            return depth >= pad_half + self.config.pad_depth_margin_m
+
+        flags = [deep(g) for g in grasps]
+        return [g for g, f in zip(grasps, flags) if f] + [g for g, f in zip(grasps, flags) if not f]
+
+    def _pressed(self, grasp: Any) -> Any:
+        """A suction grasp pressed `compliance_m` into its face along the approach (the bellows give; the cup
+        seals although the estimated face is a few millimetres off); other grasps as they are."""
+        press = float(getattr(self.gripper_geometry, "compliance_m", 0.0))
+        if grasp.method != "suction" or press <= 0 or grasp.q is None:
+            return grasp
+        T = np.array(grasp.T_base_tcp)
+        T[:3, 3] += press * T[:3, 2]
+        ik = self.robot.ik(T, q_seed=grasp.q, frame="tcp")
+        if not ik.success or float(np.max(np.abs(ik.q - grasp.q))) > 0.2:  # 0.2 rad: another IK branch
+            return grasp
+        return dataclasses.replace(grasp, T_base_tcp=T, q=ik.q)
+
+    def _grip_force(self) -> float:
+        """Jaw force per finger (`grip_force_n`), or the suction cup's full holding force (vacuum on)."""
+        if self.gripper_kind == "suction":
+            return float(getattr(self.gripper_geometry, "max_force_n", self.config.grip_force_n))
+        return self.config.grip_force_n
+
+    def _open_for(self, grasp: Any) -> None:
+        """Open the jaws to the grasp's planned opening plus `open_margin_m` (fully when the gripper cannot
+        open part way, or for suction: release)."""
+        open_to = getattr(self.gripper, "open_to", None)
+        if self.gripper_kind == "parallel_jaw" and callable(open_to) and grasp.opening_m > 0:
+            stroke = float(getattr(self.gripper_geometry, "stroke_m", 0.085))
+            open_to(min(stroke, float(grasp.opening_m) + self.config.open_margin_m))
+        else:
+            self.gripper.open()
 
     def _pick(self, grasp: Any, scene: CollisionScene, timings: dict[str, float]) -> float:
         cfg = self.config
@@ -432,7 +693,7 @@ class PickAndPlace:
             timings["execute"] += time.perf_counter() - t0
             raise _Abort("collision", f"path to the pre-grasp hits {hit.name}: {hit.reason}")
         try:
-            self.gripper.open()
+            self._open_for(grasp)
             self._safe(
                 "to pre-grasp",
                 lambda: self.arm.move_joints(ik.q, cfg.joint_speed_rad_s, cfg.joint_accel_rad_s2),
@@ -441,7 +702,7 @@ class PickAndPlace:
                 "approach",
                 lambda: self.arm.move_linear(grasp.T_base_tcp, cfg.linear_speed_m_s, cfg.linear_accel_m_s2),
             )
-            self.gripper.close(cfg.grip_force_n)
+            self.gripper.close(self._grip_force())
             self._safe(
                 "lift",
                 lambda: self.arm.move_linear(
@@ -462,7 +723,8 @@ class PickAndPlace:
                 held = held and width >= self.config.min_jaw_width_m
             if not held:
                 self._release_and_back_off(grasp)
-                raise _Abort("slipped", f"nothing held after closing (jaw width {1e3 * width:.1f} mm)")
+                what = f"jaw width {1e3 * width:.1f} mm" if self.gripper_kind == "parallel_jaw" else "no seal"
+                raise _Abort("slipped", f"nothing held after closing ({what})")
         finally:
             timings["verify"] += time.perf_counter() - t0
         return width
@@ -491,17 +753,19 @@ class PickAndPlace:
             return
         self._emit("verify", "re-observing", 0.8)
         try:
-            frame, est = self._estimate(prompt, timings)
+            frame, ests = self._estimates(prompt, timings)
         except _Abort as exc:
             if exc.reason == "not_found":  # lifted out of view or hidden by the gripper: not where it stood
                 return
             raise
         t0 = time.perf_counter()
-        pose_base = est.pose.transformed(np.asarray(frame.T_base_cam, dtype=np.float64))
-        moved = float(np.linalg.norm(pose_base.t - before.pose.t))
+        T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
+        # Any candidate still standing where the target stood means it was not lifted.
+        moved = min(float(np.linalg.norm(e.pose.transformed(T_base_cam).t - before.pose.t)) for e in ests)
         timings["verify"] += time.perf_counter() - t0
+        est = min(ests, key=lambda e: float(np.linalg.norm(e.pose.transformed(T_base_cam).t - before.pose.t)))
         state["estimates"].append(est)
-        state["T_base_cams"].append(np.asarray(frame.T_base_cam, dtype=np.float64))
+        state["T_base_cams"].append(T_base_cam)
         if moved < self.config.moved_min_m:
             self.gripper.open()
             raise _Abort("slipped", f"the object is still where it stood (moved {1e3 * moved:.0f} mm)")
@@ -512,11 +776,11 @@ class PickAndPlace:
         grasp: Any,
         target: PlaceTarget,
         scene: CollisionScene,
+        held_scene: CollisionScene,
         timings: dict[str, float],
         state: dict[str, Any],
         attempt: int,
     ) -> float:
-        cfg = self.config
         t0 = time.perf_counter()
         q_now = np.asarray(self.arm.joint_positions(), dtype=np.float64)
         try:
@@ -526,12 +790,12 @@ class PickAndPlace:
                 target,
                 self.robot,
                 self.gripper_geometry,
-                points_base=obs.points_base,
+                obstacles=tuple(state["placed"]),
                 q_seed=grasp.q,
+                scene=held_scene,
             )
-            scene_held = CollisionScene((), obs.support, obs.points_base, None)
             motion = plan_pick_place(
-                self.robot, grasp, place, obs.target, scene, scene_held, self.gripper_geometry, q_now
+                self.robot, grasp, place, obs.target, scene, held_scene, self.gripper_geometry, q_now
             )
         except NoFeasiblePlace as exc:
             raise _Abort("no_feasible_grasp", str(exc)) from None
@@ -544,12 +808,12 @@ class PickAndPlace:
         t0 = time.perf_counter()
         width = 0.0
         try:
-            self.gripper.open()
+            self._open_for(grasp)
             for seg in motion.segments:
                 self._emit("place" if seg.holding else "execute", f"segment {seg.name}", 0.5, attempt)
                 self._safe(seg.name, functools.partial(self.arm.follow, seg.trajectory))
                 if seg.name == "approach":
-                    self.gripper.close(cfg.grip_force_n)
+                    self.gripper.close(self._grip_force())
                 elif seg.name == "lift":
                     timings["execute"] += time.perf_counter() - t0
                     width = self._verify_held(grasp, timings)
@@ -558,16 +822,55 @@ class PickAndPlace:
                     if not self.gripper.grasp_detected():
                         self.gripper.open()
                         raise _Abort("slipped", "the object was lost during the transfer")
-                    self.gripper.open()
+                    self._open_for(grasp)
         finally:
             timings["execute"] += time.perf_counter() - t0
+        placed = ObjectModel(
+            f"placed {len(state['placed']) + 1}",
+            Pose9D(place.T_base_obj[:3, :3], place.T_base_obj[:3, 3], obs.target.pose.size),
+        )
+        state["placed"].append(placed)
         return width
 
     def _success_message(self, cmd: Command, state: dict[str, Any]) -> str:
         n = len(state["attempts"])
-        what = (
-            f"picked {cmd.object_prompt!r}"
-            if cmd.action == "pick"
-            else f"placed {cmd.object_prompt!r} on the {cmd.target}"
-        )
-        return f"{what} after {n} attempt(s)"
+        what = cmd.object_prompt if not cmd.plural else f"{state['done']} x {cmd.object_prompt}"
+        where = cmd.target if cmd.target != "object" else cmd.target_prompt
+        verb = "picked" if cmd.action == "pick" else f"placed ... on/in the {where}:"
+        return f"{verb} {what!r} after {n} attempt(s)"
+
+
+#: Prior families that hold things inside them (a place "on" one of them puts the object in).
+_CONTAINERS = ("bowl", "cup", "mug", "bin", "basket", "bucket", "pot", "tray")
+#: Observed points this close to a place surface are the surface itself [m] (sensor noise at 1-2 m).
+_SURFACE_BAND_M = 0.02
+
+
+def _plane_z(plane: Plane) -> float:
+    """Height of a plane where it passes under the base origin, along its normal [m]."""
+    return float(-plane.offset_m)
+
+
+def _height(obj: ObjectModel, support: Plane | None) -> float:
+    """Extent of the object's box along the support normal (base +z without one) [m]."""
+    up = np.array([0.0, 0.0, 1.0]) if support is None else np.asarray(support.normal)
+    return float(np.abs(obj.pose.R.T @ up) @ obj.pose.size)
+
+
+def _top_height(obj: ObjectModel, support: Plane | None) -> float:
+    """Height of the top of the object's box along the support normal [m]."""
+    up = np.array([0.0, 0.0, 1.0]) if support is None else np.asarray(support.normal)
+    return float(obj.pose.t @ up + 0.5 * _height(obj, support))
+
+
+def _at_target(obj: ObjectModel, target: PlaceTarget) -> bool:
+    """The object's centre is above the target's surface, within its footprint (it was put there)."""
+    T = target.T_base_surface
+    local = T[:3, :3].T @ (obj.pose.t - T[:3, 3])
+    return bool(np.all(np.abs(local[:2]) <= target.half_extents_xy_m) and -0.02 < local[2] < 1.0)
+
+
+def _overlaps(a: ObjectModel, b: ObjectModel) -> bool:
+    """The two boxes' centres lie within each other's half extents (the same object seen twice)."""
+    d = np.abs(a.pose.t - b.pose.t)
+    return bool(np.all(d <= np.maximum(a.pose.size, b.pose.size) / 2.0))

@@ -151,7 +151,14 @@ def test_place_without_a_configured_target_is_not_found():
     assert outcome.reason == "not_found" and "bin" in outcome.message
 
 
-def test_reasons_are_the_issue_list():
+def test_unparsable_command_is_not_understood_and_says_so():
+    outcome, _ = _run(command="sing the box a song")
+    assert outcome.reason == "not_understood" and not outcome.success
+    assert "could not understand" in outcome.message and "pick up the red mug" in outcome.message
+    assert outcome.attempts == () and outcome.estimates == ()
+
+
+def test_reasons_are_the_issue_list_plus_not_understood():
     assert REASONS == (
         "success",
         "not_found",
@@ -161,4 +168,5 @@ def test_reasons_are_the_issue_list():
         "collision",
         "timeout",
         "camera_failed",
+        "not_understood",
     )

@@ -1,0 +1,66 @@
+"""The pick benchmark's statistics and the logistics cell's layout (reach), without running episodes."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sim.bench_pick import wilson_interval
+
+SCENES = Path(__file__).resolve().parents[2] / "sim" / "scenes"
+
+
+@pytest.mark.parametrize(
+    ("k", "n", "lo", "hi"),
+    [
+        # Known answers (Wilson 1927 score interval, z = 1.96; e.g. statsmodels proportion_confint(method=
+        # "wilson")), to 4 decimals:
+        (0, 10, 0.0, 0.2775),
+        (10, 10, 0.7225, 1.0),
+        (48, 50, 0.8654, 0.9889),
+        (50, 50, 0.9287, 1.0),
+        (5, 10, 0.2366, 0.7634),
+    ],
+)
+def test_wilson_interval_known_answers(k, n, lo, hi):
+    got = wilson_interval(k, n)
+    assert got == pytest.approx((lo, hi), abs=1e-4)  # the reference values are rounded to 4 decimals
+
+
+def test_wilson_interval_contains_the_rate_and_narrows():
+    for n in (5, 20, 80):
+        lo, hi = wilson_interval(int(0.8 * n), n)
+        assert lo <= 0.8 <= hi
+    widths = [np.subtract(*wilson_interval(int(0.8 * n), n)[::-1]) for n in (5, 20, 80)]
+    assert widths[0] > widths[1] > widths[2]
+    assert wilson_interval(0, 0) == (0.0, 1.0)
+    assert all(math.isfinite(v) for v in wilson_interval(3, 7))
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_logistics_cell_reaches_every_carton_top_and_the_conveyor(seed):
+    # The depalletising cell is laid out for reach: a top-down suction grasp on every carton's top face
+    # (pre-grasp 10 cm above) and the conveyor's centre 30 cm above the belt have closed-form IK solutions.
+    from prompose_grasp.geometry.se3 import invert_T, make_T
+    from sim.scene_file import load_world
+
+    with load_world(SCENES / "logistics_pallet.yaml", seed=seed, settle=False) as world:
+        robot = world.robot.robot
+        T_base_world = invert_T(world.T_world_base)
+        R_down = np.diag([1.0, -1.0, -1.0])  # tcp z (approach) along base -z
+        cartons = [o for o in world.objects if o.name.startswith("carton")]
+        assert len(cartons) == 12
+        sizes = {g.name: g.size_m for g in world.ground_truth("overhead")}
+        for o in cartons:
+            T = world.T_world_obj(o.name)
+            top_world = T[:3, 3] + np.array([0.0, 0.0, sizes[o.name][1] / 2.0])  # object +y is up
+            for lift in (0.0, 0.10):
+                p_base = (T_base_world @ np.append(top_world + np.array([0.0, 0.0, lift]), 1.0))[:3]
+                assert robot.ik(make_T(R_down, p_base), frame="tcp").success, (o.name, lift)
+        conveyor = world.place_targets["conveyor"]
+        p = (T_base_world @ np.append(conveyor.T_world_surface[:3, 3] + np.array([0.0, 0.0, 0.3]), 1.0))[:3]
+        assert robot.ik(make_T(R_down, p), frame="tcp").success
