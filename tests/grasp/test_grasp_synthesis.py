@@ -128,3 +128,32 @@ def test_suction_on_faces_where_the_cup_fits_and_flat():
     # A heavy carton is refused for payload (118 N over a safety factor 2 holds 6 kg top-down).
     heavy = ObjectModel("carton", carton.pose, family="carton", mass_kg=9.0)
     assert set(suction_grasps(heavy, cup, CONFIG, Plane.horizontal(0.0)).pre_rejected) == {"payload"}
+
+
+def test_suction_on_a_stepped_carton_seals_on_the_flat_top_near_its_centre_of_mass():
+    # A 30 x 20 x 15 cm carton with its last 10 cm 5 cm lower (two closed boxes side by side): the estimated
+    # box is the full 30 x 20 x 15 cm, but its top face is flat only over the first 20 cm, and the centre of
+    # mass (uniform density) sits 12.5 mm towards the tall part: x = (0.006 * -0.05 + 0.002 * 0.10) / 0.008.
+    tall = trimesh.creation.box(extents=[0.2, 0.2, 0.15])
+    tall.apply_translation([-0.05, 0.0, 0.075])
+    low = trimesh.creation.box(extents=[0.1, 0.2, 0.10])
+    low.apply_translation([0.10, 0.0, 0.05])
+    mesh = trimesh.util.concatenate([tall, low])
+    mesh.apply_translation([0.0, -0.6, 0.0])
+    carton = ObjectModel(
+        "carton", Pose9D(R_UP, [0.0, -0.6, 0.075], [0.3, 0.15, 0.2]), mesh=mesh, family="carton"
+    )
+    np.testing.assert_allclose(carton.centre_of_mass, [-0.0125, -0.6, 0.0625 + 0.00625], atol=1e-9)
+    cup = SuctionCupGeometry()
+    cfg = GraspConfig(suction_grid=5)
+    c = suction_grasps(carton, cup, cfg, Plane.horizontal(0.0))
+    top = np.flatnonzero(c.T_base_tcp[:, 2, 2] < -1 + 1e-9)  # pressing straight down on the top face
+    ok = top[c.pre_rejected[top] == ""]
+    assert len(ok) and len(top) > len(ok)
+    x = c.T_base_tcp[:, 0, 3]
+    # Sealing positions keep the whole 25 mm cup over the tall part (x <= 0.05 - 0.025), up to the sample
+    # spacing of the flatness test (2 x sqrt(area / samples) ~ 2.4 cm here).
+    assert np.all(x[ok] <= 0.025 + 0.025)
+    assert np.all(x[top[c.pre_rejected[top] == "suction_not_flat"]] > 0.025)
+    best = ok[np.argmax(c.quality[ok])]
+    np.testing.assert_allclose(c.T_base_tcp[best][:3, 3], [-0.0125, -0.6, 0.15], atol=1e-12)  # above the COM
