@@ -26,6 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_eval_nocs(sub)
     _add_bench(sub)
     _add_run(sub)
+    _add_bench_pick(sub)
     # `train` parses its own arguments (prompose_grasp.perception.train) so that torch loads only when used.
     sub.add_parser("train", help="train the ProM-Pose network on a synthetic dataset (see: train --help)")
     return parser
@@ -146,6 +147,39 @@ def _run_run(args: argparse.Namespace) -> int:
         with open(args.json_out, "w") as f:
             json.dump(doc, f, indent=2)
     return 0 if outcome.success else 1
+
+
+def _add_bench_pick(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "bench-pick",
+        help="closed-loop pick-and-place success rate in MuJoCo over seeded episodes",
+        description="Run N seeded closed-loop episodes of a scenario (objects placed at random per seed) and "
+        "report the success rate with a Wilson 95 %% interval, failure reasons and mean cycle time (sim and "
+        "wall seconds); --oracle-mask uses the simulator's mask of the target (benchmark only) to separate "
+        "perception from grasping failures; --real-meshes uses ../shared/data/objects.",
+    )
+    p.add_argument("--scenario", required=True, help="tabletop_household | logistics_pallet | real_meshes")
+    p.add_argument("--episodes", type=int, default=20, help="seeded episodes (default 20)")
+    p.add_argument("--seed0", type=int, default=0, help="first seed (default 0)")
+    p.add_argument("--oracle-mask", action="store_true", help="ORACLE: the sim's mask instead of grounding")
+    p.add_argument("--real-meshes", action="store_true", help="tabletop with the ../shared meshes")
+    p.add_argument("--place", action="store_true", help="tabletop: 'put the X in the bin'")
+    p.add_argument("--json", dest="json_out", default=None, help="write the report here")
+    p.set_defaults(func=_run_bench_pick)
+
+
+def _run_bench_pick(args: argparse.Namespace) -> int:
+    # The simulator lives in `sim`, which the library never imports: run it as its own process.
+    import subprocess
+
+    cmd = [sys.executable, "-m", "sim", "bench-pick", "--scenario", args.scenario,
+           "--episodes", str(args.episodes), "--seed0", str(args.seed0)]  # fmt: skip
+    for flag in ("oracle_mask", "real_meshes", "place"):
+        if getattr(args, flag):
+            cmd.append("--" + flag.replace("_", "-"))
+    if args.json_out:
+        cmd += ["--json", args.json_out]
+    return subprocess.call(cmd)
 
 
 def _add_frame_args(p: argparse.ArgumentParser) -> None:
