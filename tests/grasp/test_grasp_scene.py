@@ -113,11 +113,18 @@ def _clutter(rng):
     mesh.apply_translation([-0.45, 0.2, 0.06])
     mug = ObjectModel("cyl", Pose9D(np.eye(3), [-0.45, 0.2, 0.06], [0.08, 0.08, 0.12]), mesh=mesh)
     wall = ObjectModel("wall", Pose9D(np.eye(3), [-0.5, -0.35, 0.15], [0.4, 0.01, 0.3]), kind="fixture")
+    # A carton given as a box mesh (a prior's mesh) in a tilted pose: the scene treats it as its box.
+    R_c = random_rotation(rng)
+    carton_mesh = trimesh.creation.box(extents=[0.1, 0.08, 0.06])
+    carton_mesh.apply_transform(make_T(R_c, [-0.65, 0.05, 0.2]))
+    carton = ObjectModel("carton", Pose9D(R_c, [-0.65, 0.05, 0.2], [0.1, 0.08, 0.06]), mesh=carton_mesh)
     target_mesh = trimesh.creation.icosphere(subdivisions=2, radius=0.04)
     target_mesh.apply_translation([-0.5, 0.0, 0.04])
     target = ObjectModel("ball", Pose9D(np.eye(3), [-0.5, 0.0, 0.04], [0.08, 0.08, 0.08]), mesh=target_mesh)
     points = rng.uniform([-0.35, -0.15, 0.0], [-0.25, 0.0, 0.15], (800, 3))  # an unmodelled block
-    return CollisionScene([*boxes, mug, wall], table, points, target), [*boxes, mug, wall]
+    scene = CollisionScene([*boxes, mug, wall, carton], table, points, target)
+    assert list(scene._item_kind[: len(boxes) + 3]) == [0] * len(boxes) + [1, 0, 0]  # mesh, wall, carton
+    return scene, [*boxes, mug, wall, carton]
 
 
 def _fcl_first(scene, objects, include_target) -> bool:
