@@ -730,10 +730,19 @@ class PickAndPlace:
         return width
 
     def _go_home(self, q_home: np.ndarray) -> None:
-        """Back to where the run started, out of the camera's view, before observing again."""
+        """Back to where the run started, out of the camera's view, before observing again. Joints whose
+        range exceeds a turn go to the nearest equivalent angle (q + 2 pi k within the limits: the same
+        pose), not back the long way (after a transfer the pan can be more than half a turn away)."""
         cfg = self.config
+        q_now = np.asarray(self.arm.joint_positions(), dtype=np.float64)
+        q_goal = np.array(q_home, dtype=np.float64)
+        lower, upper = self.robot.joint_limits
+        for j in range(len(q_goal)):
+            options = [q_goal[j] + 2.0 * math.pi * k for k in (-1, 0, 1)]
+            options = [v for v in options if lower[j] <= v <= upper[j]]
+            q_goal[j] = min(options, key=lambda v: abs(v - q_now[j]))
         try:
-            self.arm.move_joints(q_home, cfg.joint_speed_rad_s, cfg.joint_accel_rad_s2)
+            self.arm.move_joints(q_goal, cfg.joint_speed_rad_s, cfg.joint_accel_rad_s2)
         except (UnreachableError, UnsafeCommandError) as exc:
             logger.warning("could not return to the start configuration: %s", exc)
 
