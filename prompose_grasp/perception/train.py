@@ -20,7 +20,7 @@ import logging
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from rich.console import Console
 
-from prompose_grasp.errors import InvalidInputError, PromposeError
+from prompose_grasp.errors import InvalidInputError, PromposeError, UnknownNameError
 from prompose_grasp.perception.network.checkpoint import load_checkpoint, load_state_strict, save_checkpoint
 from prompose_grasp.perception.network.config import ABLATIONS, CONFIGS, NetworkConfig, network_config
 from prompose_grasp.perception.network.data import (
@@ -358,6 +358,58 @@ def train(
     )
 
 
+#: The training-side ablation of paper Table 2 (the others are `network.config.ABLATIONS`).
+NO_GEO_LOSS = "no_geo_loss"
+#: Every ablation of the study, in table order.
+ABLATION_STUDY = (*ABLATIONS, NO_GEO_LOSS)
+
+
+def train_ablation_study(
+    data_dir: str | Path,
+    out_dir: str | Path,
+    network: str = "tiny",
+    train_config: TrainConfig | None = None,
+    *,
+    ablations: Sequence[str] = ABLATION_STUDY,
+    device: str | torch.device = "cpu",
+    resume: bool = True,
+    progress: bool = True,
+    text_encoder: Any = None,
+    max_scenes: int | None = None,
+) -> dict[str, TrainResult]:
+    """Train each ablation of paper Table 2 with the same data, seed and schedule into `out_dir/NAME`.
+
+    The tracks are loaded once (every ablation keeps the input sizes); `no_geo_loss` is the full network
+    trained with lambda_geo = 0. Returns {name: TrainResult}.
+    """
+    from prompose_grasp.perception.text import default_text_encoder
+
+    unknown = [a for a in ablations if a not in ABLATION_STUDY]
+    if unknown:
+        raise UnknownNameError("ablation", unknown[0], ABLATION_STUDY)
+    tc = train_config or TrainConfig()
+    encoder = text_encoder or default_text_encoder("cpu")
+    base = network_config(network, text_dim=int(encoder.dim))
+    train_tracks = load_tracks(data_dir, "train", base, encoder, max_scenes=max_scenes)
+    val_tracks = load_tracks(data_dir, "val", base, encoder, max_scenes=max_scenes)
+    results = {}
+    for name in ablations:
+        config = network_config(network, "full" if name == NO_GEO_LOSS else name, text_dim=int(encoder.dim))
+        run_tc = replace(tc, loss=replace(tc.loss, lambda_geo=0.0)) if name == NO_GEO_LOSS else tc
+        log.info("ablation %s: %d steps into %s", name, run_tc.steps, Path(out_dir) / name)
+        results[name] = train_on_tracks(
+            train_tracks,
+            val_tracks,
+            config,
+            run_tc,
+            Path(out_dir) / name,
+            device=device,
+            resume=resume,
+            progress=progress,
+        )
+    return results
+
+
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     """Arguments of `prompose-grasp train` (added to `parser` when given, e.g. a CLI sub-command)."""
     p = parser or argparse.ArgumentParser(prog="prompose-grasp train", description=__doc__.splitlines()[0])
@@ -375,6 +427,11 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
         default="full",
         choices=sorted(ABLATIONS),
         help="train a paper Table 2 ablation instead of the full network (default full)",
+    )
+    p.add_argument(
+        "--ablation-study",
+        action="store_true",
+        help=f"train every ablation ({', '.join(ABLATION_STUDY)}) in turn into OUT/NAME, tracks loaded once",
     )
     p.add_argument(
         "--lambda-geo",
@@ -411,6 +468,20 @@ def run(args: argparse.Namespace) -> int:
             seed=args.seed,
             loss=LossConfig(lambda_geo=args.lambda_geo),
         )
+        if args.ablation_study:
+            results = train_ablation_study(
+                args.data,
+                args.out,
+                args.config,
+                tc,
+                device=args.device,
+                resume=not args.no_resume,
+                progress=not args.no_progress,
+                max_scenes=args.max_scenes,
+            )
+            summary = {k: {"val_last": r.val_last, "wall_s": round(r.wall_s, 1)} for k, r in results.items()}
+            Console().print(json.dumps(summary), markup=False, highlight=False, soft_wrap=True)
+            return 0
         result = train(
             args.data,
             args.out,

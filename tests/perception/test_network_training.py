@@ -15,7 +15,14 @@ from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.perception.network import load_estimator, network_config
 from prompose_grasp.perception.network.checkpoint import load_checkpoint
-from prompose_grasp.perception.train import TrainConfig, evaluate, main, train_on_tracks
+from prompose_grasp.perception.train import (
+    ABLATION_STUDY,
+    NO_GEO_LOSS,
+    TrainConfig,
+    evaluate,
+    main,
+    train_on_tracks,
+)
 
 torch.set_num_threads(1)
 TINY = network_config("tiny")
@@ -119,3 +126,19 @@ def test_train_command_end_to_end(sim_dataset, tmp_path):
     assert main([*common, *fast, "--steps", "13"]) == 0
     assert load_checkpoint(out / "last.pt")["step"] == 13
     assert main(["--data", str(tmp_path / "nothing"), "--out", str(out), "--no-progress"]) == 2
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_ablation_study_trains_each_variant_with_its_switch(sim_dataset, tmp_path):
+    out = tmp_path / "study"
+    args = ["--data", str(sim_dataset), "--out", str(out), "--config", "tiny", "--batch-size", "2"]
+    assert main([*args, "--steps", "2", "--val-every", "2", "--no-progress", "--ablation-study"]) == 0
+    for name in ABLATION_STUDY:
+        ckpt = load_checkpoint(out / name / "last.pt")
+        assert ckpt["step"] == 2
+        stored = load_estimator(weights=out / name / "last.pt").config
+        expected = network_config("tiny", "full" if name == NO_GEO_LOSS else name, text_dim=stored.text_dim)
+        assert stored == expected, name
+        lambda_geo = json.loads(ckpt["train_config"])["loss"]["lambda_geo"]
+        assert lambda_geo == (0.0 if name == NO_GEO_LOSS else 10.0), name
