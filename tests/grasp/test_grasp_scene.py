@@ -178,3 +178,26 @@ def test_batched_arm_check_agrees_with_the_single_one():
         assert (hit is None) == (single is None), (q, hit, single)
         n_hit += hit is not None
     assert 0 < n_hit < len(Q)  # both verdicts occur
+
+
+def test_segment_box_distance_matches_dense_sampling():
+    from prompose_grasp.grasp.scene import _segment_box_distance
+
+    rng = np.random.default_rng(12)
+    n = 300
+    p0, p1 = rng.uniform(-0.3, 0.3, (n, 3)), rng.uniform(-0.3, 0.3, (n, 3))
+    p1[:20] = p0[:20]  # points
+    c = rng.uniform(-0.1, 0.1, (n, 3))
+    R = np.stack([random_rotation(rng) for _ in range(n)])
+    R[20:40] = np.eye(3)  # axis-aligned boxes
+    p1[20:40, 1] = p0[20:40, 1]  # segments parallel to a face
+    h = rng.uniform(0.01, 0.1, (n, 3))
+    d = _segment_box_distance(p0, p1, c, R, h)
+    t = np.linspace(0.0, 1.0, 4001)
+    for i in range(n):
+        local = (p0[i] + t[:, None] * (p1[i] - p0[i]) - c[i]) @ R[i]
+        dense = np.sqrt(np.sum(np.maximum(np.abs(local) - h[i], 0.0) ** 2, axis=1)).min()
+        # The samples bound the distance from above, by at most half a sample step of the segment.
+        step = np.linalg.norm(p1[i] - p0[i]) / 4000
+        assert dense - step / 2 - 1e-12 <= d[i] <= dense + 1e-12
+    assert np.sum(d == 0.0) > 10 and np.sum(d > 0.0) > 10  # both cases occur
