@@ -174,8 +174,10 @@ def run_benchmark(
     place: bool = False,
     out_dir: str | Path | None = None,
     progress: bool = True,
+    json_out: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Run `episodes` seeded episodes (seeds seed0 .. seed0 + episodes - 1) and summarise them."""
+    """Run `episodes` seeded episodes (seeds seed0 .. seed0 + episodes - 1) and summarise them; with
+    `json_out` the report so far is rewritten after every episode (a long run can be stopped)."""
     from prompose_grasp.perception.estimator import ProMPose
     from sim.pick import run_episode
 
@@ -230,6 +232,10 @@ def run_benchmark(
                 wall_time_s=time.perf_counter() - t0,
             )
         rows.append(row)
+        if json_out is not None:
+            partial = _summary(rows, scenario, oracle_mask, real_meshes, place, seed0, episodes, t_all)
+            Path(json_out).parent.mkdir(parents=True, exist_ok=True)
+            Path(json_out).write_text(json.dumps(partial, indent=2))
         if progress:
             n_ok = sum(r["success"] for r in rows)
             print(
@@ -237,6 +243,20 @@ def run_benchmark(
                 f"({row['wall_time_s']:.1f} s wall) -> {n_ok}/{len(rows)}",
                 flush=True,
             )
+    return _summary(rows, scenario, oracle_mask, real_meshes, place, seed0, episodes, t_all)
+
+
+def _summary(
+    rows: list[dict[str, Any]],
+    scenario: str,
+    oracle_mask: bool,
+    real_meshes: bool,
+    place: bool,
+    seed0: int,
+    episodes: int,
+    t_all: float,
+) -> dict[str, Any]:
+    """The report of the episodes run so far."""
     n_ok = sum(r["success"] for r in rows)
     lo, hi = wilson_interval(n_ok, len(rows))
     sims = [r["sim_time_s"] for r in rows if math.isfinite(r.get("sim_time_s", float("nan")))]
@@ -246,7 +266,8 @@ def run_benchmark(
         "oracle_mask": oracle_mask,
         "place": place,
         "episodes": len(rows),
-        "seeds": [seed0, seed0 + episodes - 1],
+        "episodes_planned": episodes,
+        "seeds": [seed0, seed0 + len(rows) - 1],
         "successes": n_ok,
         "success_rate": n_ok / len(rows),
         "wilson95": [lo, hi],
@@ -306,6 +327,7 @@ def run_from_args(args: argparse.Namespace) -> int:
         real_meshes=args.real_meshes,
         place=args.place,
         out_dir=args.out,
+        json_out=args.json_out,
     )
     print(format_report(report))
     if args.json_out:

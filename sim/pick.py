@@ -25,7 +25,7 @@ import numpy as np
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry.se3 import invert_T
-from prompose_grasp.grasp import PlaceTarget
+from prompose_grasp.grasp import PalletPattern, PlaceTarget
 from prompose_grasp.pipeline.outcome import PickOutcome, ProgressEvent
 from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
 from sim.arm import SimArm
@@ -50,9 +50,10 @@ class EpisodeResult:
     out_dir: Path | None
 
 
-def place_targets_of(world) -> dict[str, PlaceTarget]:
+def place_targets_of(world, patterns: dict[str, PalletPattern] | None = None) -> dict[str, PlaceTarget]:
     """The scene's place targets as the library's `PlaceTarget`s in the arm's base frame (scene layout: what a
-    user measures once when setting up a cell, not a perception result)."""
+    user measures once when setting up a cell, not a perception result); `patterns` {place target name:
+    `PalletPattern`} for pallets (the scene file's `pattern`)."""
     T_base_world = invert_T(world.T_world_base)
     kinds = {"bin": "bin", "table": "surface", "conveyor": "surface", "pallet": "pallet"}
     out: dict[str, PlaceTarget] = {}
@@ -60,11 +61,13 @@ def place_targets_of(world) -> dict[str, PlaceTarget]:
         kind = kinds.get(support.kind)
         if kind is None or support.kind in out:
             continue
+        name = next(n for n, s in world.place_targets.items() if s is support)
         out[support.kind] = PlaceTarget(
             kind,
             T_base_world @ support.T_world_surface,
             support.half_extents_xy_m,
             float(support.wall_height_m),
+            (patterns or {}).get(name) if kind == "pallet" else None,
         )
     return out
 
@@ -139,6 +142,17 @@ def evaluate_target(world, name: str, T_world_obj_start: np.ndarray) -> dict[str
         "start_world_m": T_world_obj_start[:3, 3].tolist(),
         "end_world_m": T_now[:3, 3].tolist(),
     }
+
+
+def _patterns(spec) -> dict[str, PalletPattern]:
+    """{place target name: PalletPattern} from the scene file's `place_targets[].pattern`."""
+    out = {}
+    for p in spec.place_targets:
+        if "pattern" in p:
+            q = p["pattern"]
+            rows, cols, layers = (int(q.get(k, d)) for k, d in (("rows", 3), ("cols", 3), ("layers", 2)))
+            out[p["name"]] = PalletPattern(rows, cols, layers, float(q.get("gap_m", 0.01)))
+    return out
 
 
 def _pose_dict(pose) -> dict[str, Any]:
@@ -250,7 +264,7 @@ def run_episode(
                 loop_estimator,
                 info.robot,
                 info.gripper,
-                place_targets=place_targets_of(world),
+                place_targets=place_targets_of(world, _patterns(spec)),
                 config=config,
                 on_event=on_event,
             )

@@ -302,7 +302,9 @@ def parse_scene(doc: Mapping[str, Any], base_dir: str | Path = ".") -> SceneSpec
 
     place_targets = list(doc.get("place_targets", []) or [])
     for i, p in enumerate(place_targets):
-        _check_keys(p, ("name", "support"), f"place_targets[{i}]")
+        _check_keys(p, ("name", "support", "pattern"), f"place_targets[{i}]")
+        if "pattern" in p:
+            _check_keys(p["pattern"], _PATTERN_KEYS, f"place_targets[{i}].pattern")
         if p.get("support") not in names:
             raise UnknownNameError(f"support in place_targets[{i}]", p.get("support"), sorted(names))
 

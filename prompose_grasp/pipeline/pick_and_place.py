@@ -808,6 +808,8 @@ class PickAndPlace:
             )
         except NoFeasiblePlace as exc:
             raise _Abort("no_feasible_grasp", str(exc)) from None
+        except InvalidInputError as exc:  # e.g. a pallet pattern the estimated carton does not fit
+            raise _Abort("no_feasible_grasp", f"no place pose: {exc}") from None
         except NoFeasibleMotion as exc:
             reason = "ik_failed" if "IK" in exc.reason else "collision"
             raise _Abort(reason, str(exc)) from None
