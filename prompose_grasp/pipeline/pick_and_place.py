@@ -369,7 +369,18 @@ class PickAndPlace:
 
     def _estimates(self, prompt: str, timings: dict[str, float]) -> tuple[RGBDFrame, list[Any]]:
         """Capture `observe_frames` frames and estimate the prompt: the candidates, best first (one with a
-        tracker over several frames or an estimator without `estimate_all`)."""
+        tracker over several frames or an estimator without `estimate_all`). Nothing found is retried on
+        fresh frames `camera_retries` times (a transient depth hole or occlusion) before "not_found"."""
+        for k in range(self.config.camera_retries):
+            try:
+                return self._estimates_once(prompt, timings)
+            except _Abort as exc:
+                if exc.reason != "not_found" or k + 1 == self.config.camera_retries:
+                    raise
+                logger.info("nothing found (%s); observing again", exc.message)
+        raise _Abort("not_found", "no observation")  # not reached: the loop returns or raises
+
+    def _estimates_once(self, prompt: str, timings: dict[str, float]) -> tuple[RGBDFrame, list[Any]]:
         t0 = time.perf_counter()
         frames = [self._capture() for _ in range(self.config.observe_frames)]
         timings["observe"] += time.perf_counter() - t0

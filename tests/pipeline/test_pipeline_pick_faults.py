@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from prompose_grasp.errors import CameraError, ObjectNotFoundError
+from prompose_grasp.errors import CameraError, ObjectNotFoundError, UnreachableError, UnsafeCommandError
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.se3 import invert_T, make_T
@@ -32,11 +32,13 @@ PICK = Command("pick up the box", "pick", "the box", False, None, "", 1.0, 0.0)
 
 
 class Camera:
-    """Frames of a flat table 1 m below; `fail` captures raise CameraError first (dropped frames)."""
+    """Frames of a flat table 1 m below; `fail` captures raise CameraError first (dropped frames); the first
+    `holes` captures have no depth reading in the image centre (where the object stands)."""
 
-    def __init__(self, fail: int = 0, T_base_cam=T_BASE_CAM):
+    def __init__(self, fail: int = 0, T_base_cam=T_BASE_CAM, holes: int = 0):
         self.fail = fail
         self.T_base_cam = T_base_cam
+        self.holes = holes
         self.calls = 0
 
     def capture(self) -> RGBDFrame:
@@ -44,6 +46,8 @@ class Camera:
         if self.calls <= self.fail:
             raise CameraError("frame dropped")
         depth = np.full((K.height, K.width), 1.0, dtype=np.float32)
+        if self.calls - self.fail <= self.holes:
+            depth[:, 40:120] = 0.0  # no reading over the object (base x -0.5 +- 0.13 m at 1 m)
         rgb = np.zeros((K.height, K.width, 3), dtype=np.uint8)
         return RGBDFrame(rgb, depth, K, float(self.calls), self.T_base_cam)
 
@@ -60,6 +64,10 @@ class OracleEstimator:
         self.calls += 1
         if not self.found:
             raise ObjectNotFoundError(f"no object matches {prompt!r}")
+        x_cam = self.t_base[0] - T_BASE_CAM[0, 3]  # the camera looks straight down from 1 m
+        u = int(np.clip(K.cx + K.fx * x_cam / T_BASE_CAM[2, 3], 0, K.width - 1))
+        if not frame.depth_m[int(K.cy), u] > 0:  # as the estimator: no depth points on the object
+            raise ObjectNotFoundError(f"the mask of {prompt!r} holds no valid depth points")
         T_cam_base = invert_T(frame.T_base_cam)
         pose = Pose9D(R_UP, self.t_base, [0.05, 0.06, 0.06]).transformed(T_cam_base)
         mesh = trimesh.creation.box(extents=pose.size)
@@ -70,12 +78,36 @@ class OracleEstimator:
         return SimpleNamespace(pose=pose, prior=prior, mesh_cam=mesh, support_plane=plane)
 
 
+class RecordingArm(FakeArm):
+    """FakeArm that records the commands its validator refused (the loop must never send one)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.refused: list[str] = []
+
+    def _record(self, fn, *args):
+        try:
+            return fn(*args)
+        except (UnsafeCommandError, UnreachableError) as exc:
+            self.refused.append(str(exc))
+            raise
+
+    def move_joints(self, q, speed, accel):
+        return self._record(super().move_joints, q, speed, accel)
+
+    def move_linear(self, T_base_tcp, speed, accel):
+        return self._record(super().move_linear, T_base_tcp, speed, accel)
+
+    def follow(self, trajectory):
+        return self._record(super().follow, trajectory)
+
+
 def _run(
     camera=None, estimator=None, object_width_m=0.05, config=None, command=PICK
 ) -> tuple[PickOutcome, list]:
     events: list = []
     cfg = config or PickConfig(reobserve=False, max_estimates=2, grasps_per_estimate=2)
-    with FakeArm(ROBOT) as arm, FakeGripper(object_width_m=object_width_m) as gripper:
+    with RecordingArm(ROBOT) as arm, FakeGripper(object_width_m=object_width_m) as gripper:
         pnp = PickAndPlace(
             arm,
             gripper,
@@ -87,6 +119,8 @@ def _run(
             on_event=events.append,
         )
         outcome = pnp.run(command)
+    # Nothing the validator rejects is ever sent: every command the loop gave the arm was accepted.
+    assert arm.refused == [], arm.refused
     return outcome, events
 
 
@@ -104,6 +138,17 @@ def test_happy_path_succeeds_with_events_and_timings():
 def test_dropped_frames_are_retried():
     outcome, _ = _run(camera=Camera(fail=2))
     assert outcome.success, outcome.message
+
+
+def test_transient_depth_holes_over_the_target_are_observed_again():
+    outcome, _ = _run(camera=Camera(holes=2))  # two frames without depth on the object, then a good one
+    assert outcome.success, outcome.message
+
+
+def test_persistent_depth_holes_over_the_target_are_not_found():
+    outcome, _ = _run(camera=Camera(holes=10**6))
+    assert outcome.reason == "not_found" and "no valid depth" in outcome.message
+    assert outcome.attempts == ()
 
 
 def test_camera_that_always_raises_is_camera_failed():
