@@ -442,23 +442,25 @@ class CollisionScene:
                     capsule_pair[rows] = True
                     decided |= certain
                     narrow &= ~capsule_pair | (close & ~certain)
+        # Each owner reports the first item (in registration order: objects and fixtures before the observed
+        # points) it touches: a pair fcl must decide is run only when its item comes before the owner's first
+        # certain one.
+        first_certain = np.full(len(hits), np.iinfo(np.int64).max)
         dk = np.flatnonzero(decided)
-        if dk.size:
-            # The first item (in registration order) each owner certainly touches.
-            order = dk[np.lexsort((m[dk], owner[q[dk]]))]
-            own = owner[q[order]]
-            for k in order[np.r_[True, own[1:] != own[:-1]]]:
-                hits[owner[q[k]]] = label(objects[m[k]][1], q[k])
-            free[own] = False
+        np.minimum.at(first_certain, owner[q[dk]], m[dk])
         calls = 0
         todo = np.flatnonzero(narrow & ~decided & free[owner[q]])
-        # In query order, so that one placement's object is moved once for all its pairs.
-        for k in todo[np.argsort(q[todo], kind="stable")]:
+        todo = todo[m[todo] < first_certain[owner[q[todo]]]]
+        for k in todo[np.lexsort((m[todo], owner[q[todo]]))]:  # per owner, in item order
             o = owner[q[k]]
             if hits[o] is not None:
                 continue
             calls += 1
             if fcl.collide(query_object(q[k]), objects[m[k]][0], self._nohit_request, fcl.CollisionResult()):
+                hits[o] = label(objects[m[k]][1], q[k])
+        for k in dk[np.lexsort((m[dk], owner[q[dk]]))]:
+            o = owner[q[k]]
+            if hits[o] is None and m[k] == first_certain[o]:
                 hits[o] = label(objects[m[k]][1], q[k])
         return calls
 
