@@ -204,7 +204,7 @@ def ik_nearest_batch(
             s = seed[rows] if seed.ndim == 2 else seed
             q_out[rows], ok_out[rows], br_out[rows] = ik_nearest_batch(spec, T[rows], s, lower, upper)
         return q_out, ok_out, br_out
-    Q, valid = _branches_unverified(spec, T, seed[..., 5])
+    Q, valid = _branches_by_z_turns(spec, T, seed)
     shifted, ok, dist = nearest_in_limits_batch(Q, valid, seed, lower, upper)
     order = np.argsort(dist, axis=1, kind="stable")
     shifted = np.take_along_axis(shifted, order[:, :, None], axis=1)
@@ -244,6 +244,29 @@ def ik_nearest_batch(
 
 def _branches_unverified(spec: URSpec, T: np.ndarray, q6_if_singular) -> tuple[np.ndarray, np.ndarray]:
     return ik_branches_batch(spec, T, q6_if_singular, verify=False)
+
+
+def _branches_by_z_turns(spec: URSpec, T: np.ndarray, seed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`_branches_unverified` solved once per distinct (flange position, flange z axis).
+
+    Targets that differ only by a turn phi about the flange's own z axis (a grasp and its flip, the yaws of a
+    suction cup: the tcp lies on that axis) differ only in q6: joint 6 turns the flange about that axis
+    (alpha6 = a6 = 0), so every branch of T Rz(phi) is the branch of T with q6 + phi. Candidates come in such
+    groups of 2 (jaw flips) to 4 (cup yaws), so this halves to quarters the closed-form work."""
+    n = len(T)
+    key = np.ascontiguousarray(np.concatenate([T[:, :3, 3], T[:, :3, 2]], axis=1))
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.ravel()
+    q6_seed = seed[..., 5] if seed.ndim == 1 else seed[first, 5]
+    if len(first) == n:
+        return _branches_unverified(spec, T, seed[..., 5])
+    Q1, valid1 = _branches_unverified(spec, T[first], q6_seed)
+    # The turn about z taking each group's first target to the member: R_first^T R = Rz(phi).
+    R_rel = np.swapaxes(T[first[inverse], :3, :3], 1, 2) @ T[:, :3, :3]
+    phi = np.arctan2(R_rel[:, 1, 0], R_rel[:, 0, 0])
+    Q = Q1[inverse]
+    Q[..., 5] = _wrap(Q[..., 5] + phi[:, None])
+    return Q, valid1[inverse]
 
 
 def link_frames_batch(spec: URSpec, Q: np.ndarray) -> np.ndarray:

@@ -45,3 +45,26 @@ def test_nearest_matches_ik_all_and_refuses_unreachable():
     assert ok2.all()
     for i in range(0, len(T), 10):
         np.testing.assert_allclose(q2[i], robot.ik_all(T[i], seeds[i], frame="flange")[0], atol=1e-9)
+
+
+def test_targets_turned_about_the_flange_axis_share_their_branches_exactly():
+    # Flipped jaw grasps and suction yaws are the same flange pose turned about its own z axis: the batch
+    # solves one of each group and turns q6; every answer still equals the single-target solver's.
+    robot = load_robot("ur10e")
+    rng = np.random.default_rng(9)
+    lower, upper = robot.joint_limits
+    base = fk_batch(robot.spec, robot.random_configurations(rng, 40))
+    turns = np.array([0.0, np.pi / 2, np.pi, 3 * np.pi / 2, 0.3])
+    Rz = np.array(
+        [
+            [[np.cos(a), -np.sin(a), 0, 0], [np.sin(a), np.cos(a), 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+            for a in turns
+        ]
+    )
+    T = (base[:, None] @ Rz[None]).reshape(-1, 4, 4)
+    seed = robot.random_configurations(rng, 1)[0]
+    q, ok, _ = ik_nearest_batch(robot.spec, T, seed, lower, upper)
+    assert ok.all()
+    for i in range(len(T)):
+        np.testing.assert_allclose(q[i], robot.ik_all(T[i], seed, frame="flange")[0], atol=1e-9)  # rounding
+        np.testing.assert_allclose(robot.fk(q[i]), T[i], atol=1e-12)  # exact solutions
