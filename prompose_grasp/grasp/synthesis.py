@@ -399,6 +399,20 @@ def antipodal_grasps(
     loose = (dist_m > 1e-3 - slack) & (dist_m <= max_dist + slack)
     loose &= -(NX - nx[:, None]) >= cos_cone * dist_m - slack  # the pad at p_i pushes along +u, into it
     loose &= (nx[None, :] - NX.T) >= cos_cone * dist_m - slack  # n_j . (p_j - p_i)
+    if regions:
+        # The family's regions (`_region_mask`, applied exactly below): a horizontal closing line, both
+        # contacts in the rim band or both in the body band.
+        y = (P - target.pose.t) @ target.pose.R[:, 1]
+        h = float(target.pose.size[1])
+        loose &= np.abs(y[None, :] - y[:, None]) <= math.sin(math.radians(_HORIZONTAL_DEG)) * dist_m + slack
+        rim = y >= h / 2.0 - max(_RIM_FRACTION * h, _RIM_MIN_M) - slack
+        body = np.abs(y) <= _BODY_FRACTION * h / 2.0 + slack
+        allowed = np.zeros_like(loose)
+        if "rim" in regions:
+            allowed |= rim[:, None] & rim[None, :]
+        if "body" in regions:
+            allowed |= body[:, None] & body[None, :]
+        loose &= allowed
     i1, i2 = np.nonzero(np.triu(loose, k=1))
     d = P[i2] - P[i1]
     dist = np.linalg.norm(d, axis=1)
