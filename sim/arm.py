@@ -107,6 +107,11 @@ def trapezoid_profile(
     return s, v, a, duration
 
 
+#: A trajectory whose first waypoint is this close to the arm (measured or set-point) starts there [rad]: the
+#: servo error at rest (loaded, or pressing a suction cup on a face) is below it.
+_START_TOL_RAD = 0.005
+
+
 class SimArm(Arm):
     """The arm of a `SimWorld` built with a robot (`sim.robot_scene.add_robot` or a scene file's `robot`).
 
@@ -238,11 +243,12 @@ class SimArm(Arm):
         q0 = self.joint_targets()
         q_meas = self.joint_positions()
         q_first = np.asarray(trajectory.q, dtype=np.float64)[0]
-        if np.linalg.norm(q_first - q_meas) < np.linalg.norm(q_first - q0):
-            # Planned from the measured position (a real controller's trajectories start from the actual
-            # joint positions): the servo error (a cup pressed on a face, a load) would otherwise be a jump
-            # in the first 2 ms. Re-anchor the set-point where the arm is; it is at rest between moves.
-            q0 = q_meas
+        if min(np.max(np.abs(q_first - q_meas)), np.max(np.abs(q_first - q0))) < _START_TOL_RAD:
+            # A trajectory planned from where the arm is (a real controller starts trajectories from the
+            # actual joint positions): its first waypoint differs from the set-point by the servo error (a
+            # cup pressed on a face, a load, settling), which would be a jump in the first 2 ms. At rest
+            # between moves, re-anchor the set-point on the first waypoint.
+            q0 = q_first.copy()
             self._apply(q0, np.zeros(6), np.zeros(6))
         sent = self.validator.validate_trajectory(trajectory, q0)
         self._run_trajectory(sent, q0)
