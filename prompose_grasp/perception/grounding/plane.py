@@ -1,14 +1,24 @@
-"""The support plane: RANSAC on a sparse point grid, refined by least squares, oriented towards the camera."""
+"""The support plane: sequential RANSAC on a sparse point grid for up to three dominant planes, each refined
+by least squares and oriented towards the camera; walls are set aside and the plane with the most support
+in the middle of the view, with the scene above it, is the one objects stand on."""
 
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 
 from prompose_grasp.perception.grounding.types import GroundingConfig, SupportPlane
 
-__all__ = ["PlaneFrame", "fit_support_plane", "plane_frame"]
+__all__ = [
+    "PlaneCandidate",
+    "PlaneFrame",
+    "choose_support_plane",
+    "fit_support_plane",
+    "plane_candidates",
+    "plane_frame",
+]
 
 log = logging.getLogger(__name__)
 
@@ -23,6 +33,29 @@ _MIN_INLIER_FRACTION = 0.10
 
 _MIN_POINTS = 30
 
+#: Planes looked for one after another (a table, a wall, a second wall or a large box face).
+_MAX_PLANES = 3
+
+#: Points further than this [m] off a plane count as on one side of it (`PlaneCandidate.above_share`): past
+#: the inlier band and the noise of a D435 up to ~1.5 m (sigma 9 mm there).
+_SIDE_BAND_M = 0.02
+
+#: Sigma [deg] of the centre weighting of plane support (`_centre_weight`).
+_CENTRE_SIGMA_DEG = 15.0
+
+#: Two planes whose normals differ by more than this [deg] are a floor-wall pair (a table meets a wall at
+#: 90 deg; 50 deg leaves room for a tilted board or a sloped face of a large object).
+_WALL_ANGLE_DEG = 50.0
+
+#: The floor's normal must point further up the image than the wall's by this much (of the unit normal's
+#: -y component): a camera rolled by up to ~40 deg still sees a table's normal point up the image, a wall's
+#: down (the REAL275 frame: table -0.86, wall +0.43).
+_UP_MARGIN = 0.3
+
+#: The floor of a floor-wall pair must have at least this share of the wall's central support (a sliver of
+#: floor under a wall that fills the view does not make the wall a wall).
+_WALL_RIVAL_SHARE = 0.3
+
 
 def _refine(points: np.ndarray, inliers: np.ndarray) -> tuple[np.ndarray, float]:
     """Least-squares plane (total least squares: smallest principal axis) through the inlier points."""
@@ -34,24 +67,16 @@ def _refine(points: np.ndarray, inliers: np.ndarray) -> tuple[np.ndarray, float]
     return n, -float(n @ c)
 
 
-def fit_support_plane(points_cam: np.ndarray, config: GroundingConfig) -> SupportPlane | None:
-    """The dominant plane of a point set, with its normal pointing to the camera's side.
-
-    Args:
-        points_cam: (N, 3) float64 finite camera-frame points [m] (a strided sample of the depth image).
-        config: `ransac_iterations`, `ransac_inlier_m` and `seed` are used.
-
-    Returns:
-        The plane, or None when there are too few points or no plane holds `_MIN_INLIER_FRACTION` of them.
-        Deterministic: the hypotheses come from `numpy.random.default_rng(config.seed)`.
-    """
-    N = len(points_cam)
+def _ransac_plane(
+    points: np.ndarray, rng: np.random.Generator, config: GroundingConfig
+) -> tuple[np.ndarray, float] | None:
+    """The plane with the most inliers among `config.ransac_iterations` 3-point hypotheses, refined twice."""
+    N = len(points)
     if N < _MIN_POINTS:
         return None
-    rng = np.random.default_rng(config.seed)
-    subset = points_cam if N <= _SCORE_SUBSET else points_cam[rng.choice(N, _SCORE_SUBSET, replace=False)]
+    subset = points if N <= _SCORE_SUBSET else points[rng.choice(N, _SCORE_SUBSET, replace=False)]
     idx = rng.integers(0, N, size=(config.ransac_iterations, 3))
-    a, b, c = points_cam[idx[:, 0]], points_cam[idx[:, 1]], points_cam[idx[:, 2]]
+    a, b, c = points[idx[:, 0]], points[idx[:, 1]], points[idx[:, 2]]
     normals = np.cross(b - a, c - a)
     norms = np.linalg.norm(normals, axis=1)
     ok = norms > 1e-9
@@ -63,18 +88,134 @@ def fit_support_plane(points_cam: np.ndarray, config: GroundingConfig) -> Suppor
     best = int(np.argmax(counts))
     n, d = normals[best], float(offsets[best])
     for _ in range(2):  # refit on the inliers, then once more on the refit's inliers
-        inliers = np.abs(points_cam @ n + d) < config.ransac_inlier_m
+        inliers = np.abs(points @ n + d) < config.ransac_inlier_m
         if inliers.sum() < 3:
             return None
-        n, d = _refine(points_cam, inliers)
-    inliers = np.abs(points_cam @ n + d) < config.ransac_inlier_m
-    fraction = float(inliers.mean())
-    if fraction < _MIN_INLIER_FRACTION:
-        log.debug("no support plane: best plane holds %.1f %% of the points", 100 * fraction)
-        return None
+        n, d = _refine(points, inliers)
+    n = n / np.linalg.norm(n)
     if d < 0:  # the camera (origin) must be on the positive side: normal points "up" towards it
         n, d = -n, -d
-    return SupportPlane(normal_cam=n / np.linalg.norm(n), offset_m=d, inlier_fraction=fraction)
+    return n, float(d)
+
+
+@dataclass(frozen=True)
+class PlaneCandidate:
+    """One of the dominant planes of a frame and what `choose_support_plane` judged it by.
+
+    Attributes:
+        plane: the plane (normal towards the camera), `inlier_fraction` of all the points.
+        central_support: inliers weighted by `_centre_weight` (their direction's angle from the optical axis),
+            as a share of all the points: a table under the objects fills the middle of the view.
+        above_share: of the points off the plane by more than `_SIDE_BAND_M`, the share on the camera's side:
+            objects stand on a support, so most of what is not the plane is above it (a box's top face has
+            the scene below it).
+        wall: True when another candidate at more than `_WALL_ANGLE_DEG` to it has its normal pointing
+            further up the image (see `choose_support_plane`).
+    """
+
+    plane: SupportPlane
+    central_support: float
+    above_share: float
+    wall: bool = False
+
+    @property
+    def score(self) -> float:
+        """central_support x (0.25 + 0.75 above_share); walls score 0."""
+        return 0.0 if self.wall else self.central_support * (0.25 + 0.75 * self.above_share)
+
+
+def _centre_weight(points: np.ndarray) -> np.ndarray:
+    """(N,) Gaussian weight of each point's viewing direction's angle from the optical axis (sigma 15 deg).
+
+    The camera is pointed at the objects, and the objects stand on the support, so the support fills the
+    middle of the view; 15 deg is half the half-field of a 58 deg camera: points at the image's edge count a
+    fifth, at the corners a tenth.
+    """
+    z = np.maximum(points[:, 2], 1e-9)
+    tan2 = (points[:, 0] ** 2 + points[:, 1] ** 2) / z**2
+    theta = np.arctan(np.sqrt(tan2))
+    return np.exp(-0.5 * (theta / np.radians(_CENTRE_SIGMA_DEG)) ** 2)
+
+
+def plane_candidates(points_cam: np.ndarray, config: GroundingConfig) -> list[PlaneCandidate]:
+    """Up to `_MAX_PLANES` dominant planes, found one after another (each on the points the previous left).
+
+    Each holds at least `_MIN_INLIER_FRACTION` of all the points. Deterministic (seeded by `config.seed`).
+    """
+    P = np.asarray(points_cam, dtype=np.float64)
+    N = len(P)
+    if N < _MIN_POINTS:
+        return []
+    rng = np.random.default_rng(config.seed)
+    w = _centre_weight(P)
+    free = np.ones(N, dtype=bool)
+    found: list[PlaneCandidate] = []
+    for _ in range(_MAX_PLANES):
+        rest = np.nonzero(free)[0]
+        fit = _ransac_plane(P[rest], rng, config)
+        if fit is None:
+            break
+        n, d = fit
+        h = P @ n + d
+        inliers = np.abs(h) < config.ransac_inlier_m
+        fraction = float(inliers.mean())
+        if fraction < _MIN_INLIER_FRACTION:
+            break
+        off = np.abs(h) > _SIDE_BAND_M
+        above = float((h[off] > 0).mean()) if np.any(off) else 1.0
+        plane = SupportPlane(normal_cam=n, offset_m=d, inlier_fraction=fraction)
+        found.append(PlaneCandidate(plane, float(w[inliers].sum() / N), above))
+        free &= ~inliers
+    # walls: of two planes at a large angle, the one whose normal points less up the image (image up is
+    # camera -y) is a wall or a box side when the other is a floor or table
+    out = []
+    for i, c in enumerate(found):
+        n = c.plane.normal_cam
+        wall = any(
+            abs(float(n @ o.plane.normal_cam)) < np.cos(np.radians(_WALL_ANGLE_DEG))
+            and -o.plane.normal_cam[1] > -n[1] + _UP_MARGIN
+            and o.central_support >= _WALL_RIVAL_SHARE * c.central_support
+            for j, o in enumerate(found)
+            if j != i
+        )
+        out.append(PlaneCandidate(c.plane, c.central_support, c.above_share, wall))
+    return out
+
+
+def choose_support_plane(candidates: list[PlaneCandidate]) -> SupportPlane | None:
+    """The candidate with the highest `PlaneCandidate.score` (None without candidates).
+
+    When every candidate is a wall by the rule (cannot happen with two: the one further up is not), the
+    largest central support wins.
+    """
+    if not candidates:
+        return None
+    scores = [c.score for c in candidates]
+    if max(scores) <= 0.0:
+        scores = [c.central_support for c in candidates]
+    return candidates[int(np.argmax(scores))].plane
+
+
+def fit_support_plane(points_cam: np.ndarray, config: GroundingConfig) -> SupportPlane | None:
+    """The plane the objects stand on, with its normal pointing to the camera's side.
+
+    Up to three dominant planes are found by sequential RANSAC (`plane_candidates`); walls (a plane at more
+    than 50 deg to another whose normal points further up the image) are set aside, and the one with the
+    most support near the middle of the view, most of the rest of the scene above it, wins
+    (`PlaneCandidate.score`).
+
+    Args:
+        points_cam: (N, 3) float64 finite camera-frame points [m] (a strided sample of the depth image).
+        config: `ransac_iterations`, `ransac_inlier_m` and `seed` are used.
+
+    Returns:
+        The plane, or None when there are too few points or no plane holds `_MIN_INLIER_FRACTION` of them.
+        Deterministic: the hypotheses come from `numpy.random.default_rng(config.seed)`.
+    """
+    plane = choose_support_plane(plane_candidates(points_cam, config))
+    if plane is None:
+        log.debug("no support plane among %d points", len(points_cam))
+    return plane
 
 
 class PlaneFrame:

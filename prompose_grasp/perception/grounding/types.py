@@ -48,6 +48,15 @@ class GroundingConfig:
             is below max(gap_min, k sigma(z)) plus the spacing a surface at 75 deg to the ray would show.
         colour_edge: neighbours whose colours differ by more than this (CIE Lab distance, 8-bit Lab units
             from OpenCV) are split: touching objects of different colour become separate candidates.
+        wide_colour_edge: neighbours also split when the colours one grid step before and one step after
+            them differ by more than this (a 4-cell baseline): a blurred edge, whose single steps all stay
+            under `colour_edge`, no longer chains a dark laptop screen to the white wall behind it. inf
+            turns it off.
+        crease_sigmas, crease_cells: grid neighbours in a concave crease of the depth surface do not join
+            (`segment.concave_creases`): a point is in one when it lies more than `crease_sigmas` sigma(z)
+            behind the mean of its two neighbours `crease_cells` grid cells away, along any of four
+            directions. Touching objects meet in such valleys (a can against a box, a box against a robot's
+            base), one object's faces meet at convex edges. inf turns it off.
         min_segment_px: segments smaller than this many full-resolution pixels are merged into a touching
             segment or dropped.
         max_candidates: at most this many candidates are returned (the best ones).
@@ -67,6 +76,9 @@ class GroundingConfig:
     neighbour_gap_sigmas: float = 4.0
     neighbour_gap_min_m: float = 0.006
     colour_edge: float = 28.0
+    wide_colour_edge: float = 40.0
+    crease_sigmas: float = 6.0
+    crease_cells: int = 5
     min_segment_px: int = 150
     max_candidates: int = 32
     device: str = "cpu"
@@ -83,10 +95,12 @@ class GroundingConfig:
                 raise InvalidInputError(f"GroundingConfig.{f.name} must be a number, got {value!r}")
             if f.name == "seed":
                 continue
+            if f.name in ("crease_sigmas", "wide_colour_edge") and value == math.inf:  # test off
+                continue
             if not math.isfinite(value) or value <= 0:
                 raise InvalidInputError(f"GroundingConfig.{f.name} must be finite and > 0, got {value!r}")
         ints: tuple[str, ...] = ("plane_stride_px", "segment_stride_px", "ransac_iterations")
-        ints += ("min_segment_px", "max_candidates")
+        ints += ("min_segment_px", "max_candidates", "crease_cells")
         for name in ints:
             if not isinstance(getattr(self, name), int):
                 raise InvalidInputError(f"GroundingConfig.{name} must be an int, got {getattr(self, name)!r}")
