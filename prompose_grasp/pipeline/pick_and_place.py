@@ -60,7 +60,7 @@ from prompose_grasp.errors import (
 )
 from prompose_grasp.geometry.pointcloud import back_project
 from prompose_grasp.geometry.pose9d import Pose9D
-from prompose_grasp.geometry.se3 import transform_points
+from prompose_grasp.geometry.se3 import invert_T, transform_points
 from prompose_grasp.grasp import (
     GraspConfig,
     ObjectModel,
@@ -72,6 +72,7 @@ from prompose_grasp.grasp import (
     plan_pick_place,
     plan_place,
 )
+from prompose_grasp.grasp.motion import MotionConfig, _free, _timed
 from prompose_grasp.grasp.planner import build_scene
 from prompose_grasp.grasp.scene import CollisionScene
 from prompose_grasp.pipeline.command import Command, CommandNotUnderstood, CommandParser
@@ -697,18 +698,30 @@ class PickAndPlace:
         if not ik.success:
             timings["execute"] += time.perf_counter() - t0
             raise _Abort("ik_failed", f"pre-grasp: {ik.message}")
-        _, hit = check_path(
-            self.robot, scene, np.array([q_now, ik.q]), self.gripper_geometry, grasp.opening_m, True
-        )
+        grip = self.gripper_geometry
+        W = np.array([q_now, ik.q])
+        _, hit = check_path(self.robot, scene, W, grip, grasp.opening_m, True)
         if hit is not None:
-            timings["execute"] += time.perf_counter() - t0
-            raise _Abort("collision", f"path to the pre-grasp hits {hit.name}: {hit.reason}")
+            # The direct joint line collides: the grasp layer's detour (up, across, down), as for a place.
+            # (`_free` / `_timed` are the grasp layer's private helpers; see the report for a public one.)
+            try:
+                W = _free(
+                    self.robot, scene, q_now, ik.q, grip, grasp.opening_m, None, None, MotionConfig(),
+                    invert_T(grip.T_flange_tcp), False,
+                )  # fmt: skip
+            except NoFeasibleMotion:
+                timings["execute"] += time.perf_counter() - t0
+                raise _Abort("collision", f"path to the pre-grasp hits {hit.name}: {hit.reason}") from None
         try:
             self._open_for(grasp)
-            self._safe(
-                "to pre-grasp",
-                lambda: self.arm.move_joints(ik.q, cfg.joint_speed_rad_s, cfg.joint_accel_rad_s2),
-            )
+            if len(W) > 2:
+                detour = _timed(self.robot, W, MotionConfig())
+                self._safe("to pre-grasp (detour)", lambda: self.arm.follow(detour))
+            else:
+                self._safe(
+                    "to pre-grasp",
+                    lambda: self.arm.move_joints(ik.q, cfg.joint_speed_rad_s, cfg.joint_accel_rad_s2),
+                )
             self._safe(
                 "approach",
                 lambda: self.arm.move_linear(grasp.T_base_tcp, cfg.linear_speed_m_s, cfg.linear_accel_m_s2),
