@@ -261,6 +261,7 @@ class CollisionScene:
             self.target_manager.registerObjects([self.target_object])
             self.target_manager.setup()
             self._target_item = _object_bounds(target)
+        self._target_name = "" if target is None else target.name
         # The items' bounds as arrays: centres (M, 3), rotations (M, 3, 3), half extents (M, 3), kinds (M,),
         # and the half extents of their world bounding boxes (M, 3).
         self._item_c = np.array([b[0] for b in bounds]).reshape(-1, 3)
@@ -378,12 +379,14 @@ class CollisionScene:
         qext = np.matmul(np.abs(qR[qidx]), qh[qidx][:, :, None])[:, :, 0]
         qcs = qc[qidx]
         near = np.abs(qcs[:, None, 0] - ic[None, :, 0]) <= qext[:, None, 0] + iext[None, :, 0] + _SAT_EPS
-        for a in (1, 2):
-            near &= np.abs(qcs[:, None, a] - ic[None, :, a]) <= qext[:, None, a] + iext[None, :, a] + _SAT_EPS
-        a, m = np.nonzero(near)
-        if a.size == 0:
+        for ax in (1, 2):
+            near &= (
+                np.abs(qcs[:, None, ax] - ic[None, :, ax]) <= qext[:, None, ax] + iext[None, :, ax] + _SAT_EPS
+            )
+        rows_q, m = np.nonzero(near)
+        if rows_q.size == 0:
             return 0
-        q = qidx[a]
+        q = qidx[rows_q]
         over = obb_overlap(qc[q], qR[q], qh[q], ic[m], iR[m], ih[m])
         q, m = q[over], m[over]
         decided = np.zeros(len(q), dtype=bool)  # the pair collides for certain
@@ -393,7 +396,7 @@ class CollisionScene:
         narrow &= ~box
         capsule = np.zeros(len(q), dtype=bool) if segments is None else np.isfinite(segments[2][q])
         cb = np.flatnonzero(capsule & (ikind[m] == _EXACT_BOX))
-        if cb.size:
+        if cb.size and segments is not None:
             # A capsule against a box: the segment's distance from the box against the radius.
             p0, p1, rad = (x[q[cb]] for x in segments)
             d = _segment_box_distance(p0, p1, ic[m[cb]], iR[m[cb]], ih[m[cb]])
@@ -466,6 +469,7 @@ class CollisionScene:
 
     def _item_arrays(self, target: bool):
         if target:
+            assert self._target_item is not None  # only called with a target
             c, R, h, kind = self._target_item
             ext = np.abs(R) @ h
             return (c[None], R[None], h[None], np.array([kind]), ext[None])
@@ -502,7 +506,7 @@ class CollisionScene:
         qR = np.repeat(np.asarray(R, dtype=np.float64), k, axis=0)
         qh = np.tile(H, (n, 1))
         owner = np.repeat(np.arange(n), k)
-        boxes = {}
+        boxes: dict[int, fcl.CollisionObject] = {}
 
         def query_object(q: int) -> fcl.CollisionObject:
             j = int(q % k)
@@ -527,7 +531,7 @@ class CollisionScene:
             self._resolve(
                 qc[sel], qR[sel], qh[sel], owner[sel], hits, True,
                 lambda q: query_object(int(sel[q])), label, self._item_arrays(True),
-                [(self.target_object, Hit("target", self.target.name), None)],
+                [(self.target_object, Hit("target", self._target_name), None)],
             )  # fmt: skip
             for i in masked:
                 hits[i] = None
@@ -728,7 +732,7 @@ class CollisionScene:
         if include_target and self.target_object is not None:
             self._resolve(
                 qc, qR, qh, owner, hits, exact, query_object, label, self._item_arrays(True),
-                [(self.target_object, Hit("target", self.target.name), None)], segments,
+                [(self.target_object, Hit("target", self._target_name), None)], segments,
             )  # fmt: skip
         return hits
 

@@ -117,12 +117,14 @@ class Reasons(Sequence[str]):
     @classmethod
     def concat(cls, parts: Sequence[Reasons]) -> Reasons:
         fns: list[Callable[[int], str]] = []
-        which, arg = [], []
+        which: list[np.ndarray] = []
+        arg: list[np.ndarray] = []
         for p in parts:
             which.append(p._which + len(fns))
             arg.append(p._arg)
             fns += p._fns
-        return cls(fns, np.concatenate(which or [np.zeros(0)]), np.concatenate(arg or [np.zeros(0)]))
+        empty = np.zeros(0, dtype=np.int64)
+        return cls(fns, np.concatenate(which or [empty]), np.concatenate(arg or [empty]))
 
 
 @dataclass
