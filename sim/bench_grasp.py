@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import time
 from collections import Counter
@@ -179,6 +180,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--scenes", nargs="*", default=list(SCENES))
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
+    load_before = os.getloadavg()
     results = []
     for name in args.scenes:
         print(f"[{name}] loading and planning ...", flush=True)
@@ -196,8 +198,30 @@ def main(argv: list[str] | None = None) -> None:
             )
         fr = ", ".join(f"{k} {100 * v:.1f} %" for k, v in res["rejected_fraction"].items())
         print(f"rejected (of {res['candidates']} candidates, exhaustive): {fr}")
+    rows = [r for res in results for r in res["objects"]]
+    load_after = os.getloadavg()
+    summary = {
+        "targets": len(rows),
+        "plan_wall_le_50ms": sum(r["plan_ms"] <= 50.0 for r in rows),
+        "plan_cpu_le_50ms": sum(r["plan_cpu_ms"] <= 50.0 for r in rows),
+        "core_wall_le_50ms": sum(r["core_ms"] <= 50.0 for r in rows),
+        "max_plan_ms": max(r["plan_ms"] for r in rows),
+        "max_plan_cpu_ms": max(r["plan_cpu_ms"] for r in rows),
+        "median_plan_ms": statistics.median(r["plan_ms"] for r in rows),
+        "median_plan_cpu_ms": statistics.median(r["plan_cpu_ms"] for r in rows),
+        "loadavg_1_5_15_before": load_before,
+        "loadavg_1_5_15_after": load_after,
+        "cpus": os.cpu_count(),
+    }
+    print(
+        f"\n{summary['plan_wall_le_50ms']} / {len(rows)} targets plan <= 50 ms wall "
+        f"({summary['plan_cpu_le_50ms']} by CPU time); median plan {summary['median_plan_ms']:.1f} ms wall, "
+        f"{summary['median_plan_cpu_ms']:.1f} ms CPU; max {summary['max_plan_ms']:.1f} / "
+        f"{summary['max_plan_cpu_ms']:.1f} ms; load average {load_before[0]:.2f} before, {load_after[0]:.2f} "
+        f"after ({os.cpu_count()} CPUs)"
+    )
     if args.json:
-        args.json.write_text(json.dumps(results, indent=2))
+        args.json.write_text(json.dumps({"summary": summary, "scenes": results}, indent=2))
         print(f"wrote {args.json}")
 
 
