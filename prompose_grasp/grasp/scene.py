@@ -404,30 +404,35 @@ class CollisionScene:
             narrow[cb] = np.abs(d - rad) <= _DISTANCE_BAND_M
         vox = np.flatnonzero(ikind[m] == _VOXELS)
         if vox.size:
-            # Each voxel cube of the block against the query's box: exact for box queries; for a capsule's
-            # bounds a cube outside them is certainly free, so only blocks with a cube inside go to fcl.
-            counts = np.array([len(objects[k][2]) for k in m[vox]])
-            rows = np.repeat(vox, counts)
-            cubes = np.concatenate([objects[k][2] for k in m[vox]])
             half = np.full(3, self.voxel_size_m / 2.0)
-            # World bounding boxes first (cheap), the separating axes on the cubes inside them.
-            qe = np.matmul(np.abs(qR[q[rows]]), qh[q[rows]][:, :, None])[:, :, 0]
-            d = np.abs(cubes - qc[q[rows]]) - qe - half
-            inside = (d[:, 0] <= _SAT_EPS) & (d[:, 1] <= _SAT_EPS) & (d[:, 2] <= _SAT_EPS)
-            rows, cubes = rows[inside], cubes[inside]
-            touch = obb_overlap(qc[q[rows]], qR[q[rows]], qh[q[rows]], cubes, np.eye(3), half)
-            rows, cubes = rows[touch], cubes[touch]
-            any_touch = np.zeros(len(q), dtype=bool)
-            any_touch[rows] = True
-            ex = exact_q[q[vox]]
-            decided[vox] = any_touch[vox] & ex
-            narrow[vox] = any_touch[vox] & ~ex
-            if segments is not None and rows.size:
-                # Capsules against the cubes they may touch: the segment's distance from each cube.
-                p0, p1, rad = (x[q[rows]] for x in segments)
-                cap = np.isfinite(rad)
-                if np.any(cap):
-                    rows, cubes, p0, p1, rad = rows[cap], cubes[cap], p0[cap], p1[cap], rad[cap]
+            narrow[vox] = False
+            vb, vc = vox[~capsule[vox]], vox[capsule[vox]]
+            if vb.size:
+                # A box (or a cylinder's bounds) against each voxel cube of the block: world bounding boxes
+                # first (cheap), the separating axes on the cubes inside them. Exact for boxes; a cylinder
+                # with a cube inside its bounds goes to fcl.
+                counts = np.array([len(objects[k][2]) for k in m[vb]])
+                rows = np.repeat(vb, counts)
+                cubes = np.concatenate([objects[k][2] for k in m[vb]])
+                qe = np.matmul(np.abs(qR[q[rows]]), qh[q[rows]][:, :, None])[:, :, 0]
+                d = np.abs(cubes - qc[q[rows]]) - qe - half
+                inside = (d[:, 0] <= _SAT_EPS) & (d[:, 1] <= _SAT_EPS) & (d[:, 2] <= _SAT_EPS)
+                rows, cubes = rows[inside], cubes[inside]
+                touch = obb_overlap(qc[q[rows]], qR[q[rows]], qh[q[rows]], cubes, np.eye(3), half)
+                any_touch = np.zeros(len(q), dtype=bool)
+                any_touch[rows[touch]] = True
+                decided[vb] = any_touch[vb] & exact_q[q[vb]]
+                narrow[vb] = any_touch[vb] & ~exact_q[q[vb]]
+            if vc.size and segments is not None:
+                # A capsule: the block's bounds first, then each cube, by the segment's distance.
+                p0, p1, rad = (x[q[vc]] for x in segments)
+                d_block = _segment_box_distance(p0, p1, ic[m[vc]], iR[m[vc]], ih[m[vc]])
+                vc = vc[d_block <= rad + _DISTANCE_BAND_M]
+                counts = np.array([len(objects[k][2]) for k in m[vc]], dtype=np.int64)
+                rows = np.repeat(vc, counts)
+                if rows.size:
+                    cubes = np.concatenate([objects[k][2] for k in m[vc]])
+                    p0, p1, rad = (x[q[rows]] for x in segments)
                     # The cube centre's distance settles most pairs (within the radius: touching; beyond the
                     # radius + half the cube's diagonal: apart); the exact distance only for the rest.
                     d = _points_segments_distance(cubes, p0, p1)
@@ -441,10 +446,8 @@ class CollisionScene:
                     certain[rows[d <= rad - _DISTANCE_BAND_M]] = True
                     close = np.zeros(len(q), dtype=bool)
                     close[rows[np.abs(d - rad) <= _DISTANCE_BAND_M]] = True
-                    capsule_pair = np.zeros(len(q), dtype=bool)
-                    capsule_pair[rows] = True
                     decided |= certain
-                    narrow &= ~capsule_pair | (close & ~certain)
+                    narrow |= close & ~certain
         # Each owner reports the first item (in registration order: objects and fixtures before the observed
         # points) it touches: a pair fcl must decide is run only when its item comes before the owner's first
         # certain one.
