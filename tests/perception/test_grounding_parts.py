@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,7 +20,7 @@ from prompose_grasp.perception.grounding.describe import (
     size_class,
     top_height_histogram,
 )
-from prompose_grasp.perception.grounding.plane import PlaneFrame, fit_support_plane
+from prompose_grasp.perception.grounding.plane import PlaneFrame, fit_support_plane, plane_candidates
 from prompose_grasp.perception.grounding.score import (
     CandidateFeatures,
     NounPrior,
@@ -27,6 +28,7 @@ from prompose_grasp.perception.grounding.score import (
     metric_size_term,
     score_candidates,
 )
+from prompose_grasp.perception.grounding.segment import concave_creases
 
 K = CameraIntrinsics(400.0, 400.0, 159.5, 119.5, 320, 240)
 
@@ -296,3 +298,185 @@ def test_top_heights_term_prefers_the_family_signature():
     tops[2, 3] = 1.0
     s = score_candidates(parse_prompt("the laptop"), feats(top_heights=tops), None, noun_prior=prior)
     assert np.argmax(s) == 1 and s[0] > s[2]  # the box shares the top bin at least
+
+
+def table_and_wall_depth(tilt_deg: float, height_m: float, wall_distance_m: float) -> np.ndarray:
+    """(H, W) float32 depth of a table `height_m` under the camera meeting a wall `wall_distance_m` ahead.
+
+    The camera looks down `tilt_deg` below the horizon; each ray hits whichever plane comes first.
+    """
+    t = math.radians(tilt_deg)
+    n_table = table_normal(tilt_deg)
+    n_wall = np.array([0.0, math.sin(t), -math.cos(t)])  # horizontal, pointing back at the camera
+    u, v = np.meshgrid(np.arange(K.width), np.arange(K.height))
+    rays = np.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, np.ones_like(u, dtype=float)], -1)
+    with np.errstate(divide="ignore"):
+        hits = [-d / (rays @ n) for n, d in ((n_table, height_m), (n_wall, wall_distance_m))]
+    hits = [np.where(h > 0, h, np.inf) for h in hits]
+    return np.minimum(*hits).astype(np.float32)
+
+
+def test_a_wall_with_more_points_than_the_table_is_not_the_support():
+    """Camera 0.5 m above a table, looking down 30 deg at a wall 0.7 m ahead: the wall fills the top 2/3."""
+    depth = table_and_wall_depth(30.0, 0.5, 0.7)
+    rng = np.random.default_rng(3)
+    noisy = depth + rng.normal(0.0, 0.003, depth.shape).astype(np.float32)  # 3 mm: D435 at ~0.8 m
+    P = depth_to_point_map(noisy, K)[::4, ::4].reshape(-1, 3)
+    candidates = plane_candidates(P, GroundingConfig())
+    table = table_normal(30.0)
+    angles = [math.degrees(math.acos(min(1.0, abs(c.plane.normal_cam @ table)))) for c in candidates]
+    # the test only means something when the wall is the bigger plane, i.e. what "most inliers" picks;
+    # 1 deg: thousands of noisy points pin each plane to hundredths of a degree
+    wall = [c for c, a in zip(candidates, angles) if a > 80.0]
+    floor = [c for c, a in zip(candidates, angles) if a < 1.0]
+    assert len(wall) == 1 and len(floor) == 1
+    assert wall[0].plane.inlier_fraction > floor[0].plane.inlier_fraction
+    assert wall[0].wall and not floor[0].wall
+    plane = fit_support_plane(P, GroundingConfig())
+    assert plane is not None
+    assert math.degrees(math.acos(min(1.0, plane.normal_cam @ table))) < 1.0  # the same 1 deg as above
+    assert abs(plane.offset_m - 0.5) < 0.003  # zero-mean noise over thousands of points
+
+
+def test_a_box_top_below_which_the_scene_lies_loses_to_the_table():
+    """A plane under which most of the scene lies (a box's top face) scores below the table it stands on."""
+    n = table_normal(40.0)
+    depth = tilted_table(n, 0.6).astype(np.float64)
+    top = np.zeros(depth.shape, bool)
+    top[40:200, 40:280] = True  # a large box top 10 cm up, filling the middle of the view (~50 %)
+    depth[top] = tilted_table(n, 0.5)[top]
+    P = depth_to_point_map(depth.astype(np.float32), K)[::4, ::4].reshape(-1, 3)
+    candidates = plane_candidates(P, GroundingConfig())
+    by_height = sorted(candidates, key=lambda c: c.plane.offset_m)
+    # the box top (d 0.5) has the whole table below it; the table (d 0.6) has the box above it
+    assert by_height[0].above_share < 0.1 and by_height[-1].above_share > 0.9
+    plane = fit_support_plane(P, GroundingConfig())
+    assert plane is not None and abs(plane.offset_m - 0.6) < 1e-3  # noise-free: exact up to float32 depth
+
+
+def fold_depth(slope: float, z0: float = 0.6) -> np.ndarray:
+    """(H, W) depth of two planes meeting in a vertical fold line through the image centre column.
+
+    slope > 0: the sides come towards the camera away from the fold, which is a valley (concave, like two
+    touching objects' faces); slope < 0: a ridge (convex, like a box's edge). X = u' z, z = z0 - slope |X|.
+    """
+    u, _ = np.meshgrid(np.arange(K.width), np.arange(K.height))
+    up = np.abs((u - K.cx) / K.fx)
+    return (z0 / (1.0 + slope * up)).astype(np.float64)
+
+
+def test_concave_creases_flag_valleys_and_the_foot_of_steps_not_ridges_nor_noise():
+    cfg = GroundingConfig()
+    s = 2  # the grounder's clustering grid
+    centre = round(K.cx / s)
+    # a 90 deg valley at 0.6 m: over k = 5 cells (10 px, u' = 0.025) the fold lies z0 u' / (1 + u') = 15 mm
+    # behind the mean of its neighbours, just over 6 sigma(0.6 m) = 14 mm: only the fold's own column
+    valley = concave_creases(fold_depth(1.0)[::s, ::s], cfg)
+    assert set(np.nonzero(valley.any(axis=0))[0]) == {centre}
+    assert valley[:, centre].mean() > 0.9  # the whole column but the k rows at the image's top and bottom
+    # a wider valley (127 deg) stays under 6 sigma: the test is meant for sharp folds and steps
+    assert not concave_creases(fold_depth(0.5)[::s, ::s], cfg).any()
+    assert not concave_creases(fold_depth(-1.0)[::s, ::s], cfg).any()  # a ridge is convex
+    # a block 5 cm above a table: the table cells next to the block's silhouette are at the foot of a step
+    n = table_normal(40.0)
+    depth = tilted_table(n, 0.6).astype(np.float64)
+    block = np.zeros(depth.shape, bool)
+    block[100:140, 120:200] = True
+    depth[block] = tilted_table(n, 0.55)[block]
+    steps = concave_creases(depth[::s, ::s], cfg)
+    on_block = block[::s, ::s]
+    assert steps.any() and not (steps & on_block).any()  # the block's own cells are on the near side
+    rng = np.random.default_rng(0)
+    flat = tilted_table(n, 0.6).astype(np.float64)
+    noisy = flat + rng.normal(0.0, 1.0, flat.shape) * np.asarray(cfg.sigma_m(flat))
+    # 6 sigma against noise of sqrt(1.5) sigma (a reading minus the mean of two): ~5 standard deviations,
+    # 4 directions x 4800 cells: ~0.01 false flags expected; the seed is fixed
+    assert not concave_creases(noisy[::s, ::s], cfg).any()
+
+
+# --- real frames (../shared/data/real, not in the repository; skipped when absent) ---------------------
+
+REAL = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real"
+_POSECNN_K = (618.0172729492188, 618.0033569335938, 312.376953125, 232.37530517578125)  # meta.yml
+
+#: name: (colour, depth, fx fy cx cy, table rectangles, wall rectangle or None, prompt, object rectangle).
+#: Rectangles (x0, y0, x1, y1) in pixels were picked by eye on the colour images: table rectangles hold
+#: only bare table, object rectangles enclose the named object with a margin of 10-25 px.
+REAL_FRAMES = {
+    "graspnet": ("graspnet_example/color.png", "graspnet_example/depth.png",
+                 (631.549, 631.208, 638.435, 366.499), [(80, 450, 330, 680), (40, 40, 400, 170)], None,
+                 "the red cracker box", (700, 200, 960, 660)),
+    "real275": ("cppf_real275_demo/0000_color.png", "cppf_real275_demo/0000_depth.png",
+                (591.0125, 590.16775, 322.525, 244.11084), [(450, 320, 630, 400), (20, 380, 120, 440)],
+                (200, 20, 600, 90), "the mug", (110, 250, 215, 360)),
+    "posecnn0": ("posecnn_demo/000000-color.png", "posecnn_demo/000000-depth.png", _POSECNN_K,
+                 [(30, 330, 130, 470), (560, 60, 630, 200)], None,
+                 "the yellow mustard bottle", (180, 120, 295, 280)),
+    "posecnn1": ("posecnn_demo/000001-color.png", "posecnn_demo/000001-depth.png", _POSECNN_K,
+                 [(30, 60, 200, 150), (450, 380, 630, 470)], None, "the red mug", (310, 170, 415, 280)),
+    "posecnn4": ("posecnn_demo/000004-color.png", "posecnn_demo/000004-depth.png", _POSECNN_K,
+                 [(30, 360, 200, 470), (560, 380, 630, 470)], (100, 10, 600, 60),
+                 "the red mug", (235, 330, 390, 470)),
+}  # fmt: skip
+
+
+def _rect_points(P: np.ndarray, rects) -> np.ndarray:
+    pts = np.concatenate([P[y0:y1, x0:x1].reshape(-1, 3) for x0, y0, x1, y1 in rects])
+    return pts[np.isfinite(pts[:, 2])]
+
+
+def _lsq_plane(pts: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares plane through points, normal towards the camera (independent of the grounder's)."""
+    c = pts.mean(axis=0)
+    n = np.linalg.eigh((pts - c).T @ (pts - c))[1][:, 0]
+    if n @ c > 0:
+        n = -n
+    return n, -float(n @ c)
+
+
+@pytest.fixture(scope="module")
+def real_grounder():
+    from prompose_grasp.perception.grounding import Grounder
+
+    return Grounder(GroundingConfig())
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="../shared/data/real is not here")
+@pytest.mark.parametrize("name", sorted(REAL_FRAMES))
+def test_real_frame_support_plane_and_named_object(name, real_grounder):
+    from prompose_grasp.perception.frames_io import load_rgbd
+
+    colour, depth, k, table, wall, prompt, (x0, y0, x1, y1) = REAL_FRAMES[name]
+    frame = load_rgbd(REAL / colour, REAL / depth, 0.001, k)
+    P = depth_to_point_map(frame.depth_m, frame.intrinsics)
+    n_table, d_table = _lsq_plane(_rect_points(P, table))
+    result = real_grounder.ground(frame.rgb, frame.depth_m, frame.intrinsics, prompt)
+    plane = result.support_plane
+    assert plane is not None
+    angle = math.degrees(math.acos(min(1.0, float(plane.normal_cam @ n_table))))
+    # The hand-picked patches hold 13k-100k points with ~2 mm RMS about their own plane (measured), which
+    # pins their normal to ~0.1 deg; real tables and real depth bend by more over the view (measured
+    # 0.4-1.1 deg on GraspNet and PoseCNN). REAL275's depth is smoothed and its counter is seen at a
+    # grazing 30 deg, so its hand patch (the front of the counter) differs by 2.5 deg from the fit over
+    # the whole counter: 5 deg there, 2 deg elsewhere. A wall is 90 deg off.
+    assert angle < (5.0 if name == "real275" else 2.0)
+    assert abs(plane.offset_m - d_table) < 0.02  # the camera's height: 2 cm, the same bending
+    if wall is not None:  # a wall in view with many points: the plane is not it
+        n_wall, _ = _lsq_plane(_rect_points(P, [wall]))
+        assert math.degrees(math.acos(min(1.0, abs(float(plane.normal_cam @ n_wall))))) > 80.0
+    best = result.best
+    assert best is not None
+    ys, xs = np.nonzero(best.mask)
+    inside = float(((xs >= x0) & (xs <= x1) & (ys >= y0) & (ys <= y1)).mean())
+    # the named object's mask lies in its hand-measured rectangle: measured 100 % on four frames, 96 % on
+    # REAL275, whose mug mask leaks into the laptop base behind its handle (the depth there is smoothed
+    # across the gap); 90 % leaves room for that leak and nothing else
+    assert inside > 0.9
+    h = P[best.mask] @ n_table + d_table
+    h = h[np.isfinite(h)]
+    # Table pixels (height under 5 mm, 2.5 x the patches' 2 mm RMS) in the mask: a mug shows its inner
+    # floor, which is at table height by design (measured 4-18 %); a bottle or a box has none, yet the
+    # inner-floor fill takes a few table pixels of similar colour at its foot (measured 0 % for the
+    # cracker box, 3 % for the mustard bottle on the yellowish wood): at most 5 %.
+    if "mug" not in prompt:
+        assert (h < 0.005).mean() < 0.05
