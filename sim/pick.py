@@ -241,6 +241,9 @@ def run_episode(
         if not fixed:
             raise InvalidInputError(f"scene {scene} has no fixed camera to observe with")
         camera = fixed[0]
+    if config is None and spec.extras.get("pipeline"):
+        # The cell's settings of the loop (e.g. the tallest carton it handles), from the scene file.
+        config = PickConfig(**dict(spec.extras["pipeline"]))
     world = build_scene(spec, seed=seed)
     with world:
         info = world.robot

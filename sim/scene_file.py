@@ -79,7 +79,7 @@ SCENE_VERSION = 1
 
 _TOP_KEYS = (
     "version", "name", "seed", "timestep_s", "robot", "gripper", "supports", "support", "cameras",
-    "objects", "place_targets", "lights", "headlight", "floor", "settle",
+    "objects", "place_targets", "lights", "headlight", "floor", "settle", "pipeline",
 )  # fmt: skip
 _SUPPORT_KEYS = {
     "table": ("name", "type", "pose", "on_top_of", "at_m", "yaw_deg", "size_m", "height_m", "appearance"),
@@ -321,7 +321,7 @@ def parse_scene(doc: Mapping[str, Any], base_dir: str | Path = ".") -> SceneSpec
         place_targets=tuple(place_targets),
         timestep_s=float(doc.get("timestep_s", 0.002)),
         settle=bool(doc.get("settle", True)),
-        extras={k: doc[k] for k in ("lights", "headlight", "floor") if k in doc},
+        extras={k: doc[k] for k in ("lights", "headlight", "floor", "pipeline") if k in doc},
     )
 
 

@@ -113,6 +113,10 @@ class PickConfig:
         lift_clearance_m: the lift after a grasp rises at least the object's estimated height plus this, so
             the held object clears what stood beside it (cartons in a layer) [m].
         max_lift_m: ... but at most this [m].
+        max_object_height_m: the tallest object the cell handles [m], or None. A box estimated taller (an
+            amodal box reaching down to the floor through a stack: from above, the height of a carton on
+            other cartons is not seen) is carried and put down as this tall, its top kept: the transfer
+            clears the neighbours and the place releases just above the surface.
         pad_depth_margin_m: jaw grasps with the pads' centre this much deeper than half a pad inside the
             estimated box are tried first (robust to the estimate's ~1 cm error) [m].
         grasp: `GraspConfig` of the planner.
@@ -139,6 +143,7 @@ class PickConfig:
     lift_clearance_m: float = 0.03
     max_lift_m: float = 0.35
     pad_depth_margin_m: float = 0.01
+    max_object_height_m: float | None = None
     grasp: GraspConfig | None = None
 
     def __post_init__(self) -> None:
@@ -172,6 +177,9 @@ class PickConfig:
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
                 raise InvalidInputError(f"PickConfig.{name} must be finite and > 0, got {v}")
+        h = self.max_object_height_m
+        if h is not None and not (math.isfinite(float(h)) and float(h) > 0):
+            raise InvalidInputError(f"PickConfig.max_object_height_m must be None or > 0 m, got {h}")
 
 
 class _Abort(Exception):
@@ -518,10 +526,25 @@ class PickAndPlace:
         )
         return target
 
+    def _carried(self, obs: _Observation) -> ObjectModel:
+        """The target as carried and put down: its box capped at `max_object_height_m` along the support
+        normal, the top kept (the estimate's top face is what the camera saw)."""
+        cap = self.config.max_object_height_m
+        height = _height(obs.target, obs.support)
+        if cap is None or height <= cap:
+            return obs.target
+        up = np.array([0.0, 0.0, 1.0]) if obs.support is None else np.asarray(obs.support.normal)
+        pose = obs.target.pose
+        k_up = int(np.argmax(np.abs(pose.R.T @ up)))
+        size = np.array(pose.size, dtype=np.float64)
+        size[k_up] = cap
+        t = pose.t + 0.5 * (height - cap) * up
+        return ObjectModel(obs.target.name, Pose9D(pose.R, t, size), family=obs.target.family)
+
     def _grasp_config(self, obs: _Observation) -> GraspConfig:
         """The planner's settings for this target: the lift clears the object's own height."""
         cfg = self.config.grasp or GraspConfig()
-        height = _height(obs.target, obs.support)
+        height = _height(self._carried(obs), obs.support)
         lift = min(max(cfg.lift_m, height + self.config.lift_clearance_m), self.config.max_lift_m)
         return dataclasses.replace(cfg, lift_m=lift) if lift != cfg.lift_m else cfg
 
@@ -816,9 +839,10 @@ class PickAndPlace:
     ) -> float:
         t0 = time.perf_counter()
         q_now = np.asarray(self.arm.joint_positions(), dtype=np.float64)
+        carried = self._carried(obs)
         try:
             place = plan_place(
-                obs.target,
+                carried,
                 grasp,
                 target,
                 self.robot,
@@ -828,7 +852,7 @@ class PickAndPlace:
                 scene=held_scene,
             )
             motion = plan_pick_place(
-                self.robot, grasp, place, obs.target, scene, held_scene, self.gripper_geometry, q_now
+                self.robot, grasp, place, carried, scene, held_scene, self.gripper_geometry, q_now
             )
         except NoFeasiblePlace as exc:
             raise _Abort("no_feasible_grasp", str(exc)) from None
@@ -862,7 +886,7 @@ class PickAndPlace:
             timings["execute"] += time.perf_counter() - t0
         placed = ObjectModel(
             f"placed {len(state['placed']) + 1}",
-            Pose9D(place.T_base_obj[:3, :3], place.T_base_obj[:3, 3], obs.target.pose.size),
+            Pose9D(place.T_base_obj[:3, :3], place.T_base_obj[:3, 3], carried.pose.size),
         )
         state["placed"].append(placed)
         return width
