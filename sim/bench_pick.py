@@ -65,21 +65,22 @@ def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float,
 class OracleMaskEstimator:
     """ORACLE (benchmarks only): the wrapped estimator fitted on the simulator's mask of the named object.
 
-    `estimate` / `estimate_all` for the target's prompt use the ground-truth segmentation of `camera` at the
-    current simulation state (the frame was just captured from it); other prompts (a place target) go to the
-    wrapped estimator unchanged. When the target is not visible, ObjectNotFoundError (as the estimator).
+    `estimate` / `estimate_all` use the ground-truth segmentation of `camera` at the current simulation
+    state (the frame was just captured from it) for every prompt but `place_prompt` (a place target named by
+    the command, which goes to the wrapped estimator unchanged). When the target is not visible,
+    ObjectNotFoundError (as the estimator).
     """
 
-    def __init__(self, estimator: Any, world: Any, camera: str, target: str, prompt: str):
+    def __init__(self, estimator: Any, world: Any, camera: str, target: str, place_prompt: str | None = None):
         self.estimator = estimator
         self.world = world
         self.camera = camera
         self.target = target
-        self.prompt = prompt
+        self.place_prompt = place_prompt
         self.instance_id = next(o.instance_id for o in world.objects if o.name == target)
 
     def _is_target(self, prompt: str) -> bool:
-        return prompt.strip().lower().removeprefix("the ").strip() == self.prompt.lower()
+        return self.place_prompt is None or prompt.strip().lower() != self.place_prompt.strip().lower()
 
     def estimate(self, frame, prompt, prior=None, mask=None):
         if not self._is_target(prompt):
@@ -188,19 +189,17 @@ def run_benchmark(
     t_all = time.perf_counter()
     for i in range(episodes):
         seed = seed0 + i
-        scene, command, prompt = _episode_plan(scenario, seed, place, real_meshes)
+        scene, command, _ = _episode_plan(scenario, seed, place, real_meshes)
         t0 = time.perf_counter()
         row: dict[str, Any] = {"seed": seed, "command": command}
         try:
             wrap = None
             if oracle_mask:
 
-                def wrap(world, camera, _prompt=prompt, _command=command):
+                def wrap(world, camera, _command=command):
                     from sim.pick import target_name_for
 
-                    name = target_name_for(world, _command)
-                    obj = next(o for o in world.objects if o.name == name)
-                    return OracleMaskEstimator(estimator, world, camera, name, obj.prompt or _prompt or "")
+                    return OracleMaskEstimator(estimator, world, camera, target_name_for(world, _command))
 
             ep_out = None if out_dir is None else Path(out_dir) / f"episode_{seed:04d}"
             result = run_episode(
