@@ -387,21 +387,28 @@ class CollisionScene:
         if rows_q.size == 0:
             return 0
         q = qidx[rows_q]
-        over = obb_overlap(qc[q], qR[q], qh[q], ic[m], iR[m], ih[m])
-        q, m = q[over], m[over]
+        capsule = np.zeros(len(q), dtype=bool) if segments is None else np.isfinite(segments[2][q])
+        # Boxes (and cylinders' bounds) against the items' oriented bounds by separating axes; capsules by
+        # the segment's exact distance from the bounds (exact for box items, tighter than the capsule's
+        # bounding box for the others).
+        keep = np.ones(len(q), dtype=bool)
+        nb = np.flatnonzero(~capsule)
+        keep[nb] = obb_overlap(qc[q[nb]], qR[q[nb]], qh[q[nb]], ic[m[nb]], iR[m[nb]], ih[m[nb]])
+        d_cap = np.full(len(q), np.inf)
+        cp = np.flatnonzero(capsule)
+        if cp.size and segments is not None:
+            p0, p1, rad = (x[q[cp]] for x in segments)
+            d_cap[cp] = _segment_box_distance(p0, p1, ic[m[cp]], iR[m[cp]], ih[m[cp]]) - rad
+            keep[cp] = d_cap[cp] <= _DISTANCE_BAND_M
+        q, m, capsule, d_cap = q[keep], m[keep], capsule[keep], d_cap[keep]
         decided = np.zeros(len(q), dtype=bool)  # the pair collides for certain
         narrow = np.ones(len(q), dtype=bool)  # the pair needs fcl
         box = (ikind[m] == _EXACT_BOX) & exact_q[q]
         decided |= box
         narrow &= ~box
-        capsule = np.zeros(len(q), dtype=bool) if segments is None else np.isfinite(segments[2][q])
         cb = np.flatnonzero(capsule & (ikind[m] == _EXACT_BOX))
-        if cb.size and segments is not None:
-            # A capsule against a box: the segment's distance from the box against the radius.
-            p0, p1, rad = (x[q[cb]] for x in segments)
-            d = _segment_box_distance(p0, p1, ic[m[cb]], iR[m[cb]], ih[m[cb]])
-            decided[cb] = d <= rad - _DISTANCE_BAND_M
-            narrow[cb] = np.abs(d - rad) <= _DISTANCE_BAND_M
+        decided[cb] = d_cap[cb] <= -_DISTANCE_BAND_M
+        narrow[cb] = np.abs(d_cap[cb]) <= _DISTANCE_BAND_M
         vox = np.flatnonzero(ikind[m] == _VOXELS)
         if vox.size:
             half = np.full(3, self.voxel_size_m / 2.0)
@@ -424,10 +431,7 @@ class CollisionScene:
                 decided[vb] = any_touch[vb] & exact_q[q[vb]]
                 narrow[vb] = any_touch[vb] & ~exact_q[q[vb]]
             if vc.size and segments is not None:
-                # A capsule: the block's bounds first, then each cube, by the segment's distance.
-                p0, p1, rad = (x[q[vc]] for x in segments)
-                d_block = _segment_box_distance(p0, p1, ic[m[vc]], iR[m[vc]], ih[m[vc]])
-                vc = vc[d_block <= rad + _DISTANCE_BAND_M]
+                # A capsule near the block's bounds (above): each cube by the segment's distance.
                 counts = np.array([len(objects[k][2]) for k in m[vc]], dtype=np.int64)
                 rows = np.repeat(vc, counts)
                 if rows.size:
