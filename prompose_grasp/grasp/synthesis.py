@@ -610,7 +610,10 @@ def suction_grasps(
             g = config.suction_grid
             us, vs = np.meshgrid(np.linspace(-half[0], half[0], g), np.linspace(-half[1], half[1], g))
             grid = np.vstack([com_proj[None], np.stack([us.ravel(), vs.ravel()], axis=1)])
-            grid = np.unique(np.round(grid, 9), axis=0)
+            # Distinct rows in lexicographic order (np.unique(axis=0) without its structured-array sort).
+            grid = np.round(grid, 9)
+            grid = grid[np.lexsort((grid[:, 1], grid[:, 0]))]
+            grid = grid[np.r_[True, np.any(grid[1:] != grid[:-1], axis=1)]]
             grid = grid[np.argsort(np.linalg.norm(grid - com_proj, axis=1), kind="stable")][: g * g]
             pts = face_c + grid[:, :1] * R[:, others[0]] + grid[:, 1:] * R[:, others[1]]  # (G, 3)
             if samples is not None and normals is not None:
