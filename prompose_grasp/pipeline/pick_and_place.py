@@ -78,6 +78,7 @@ from prompose_grasp.grasp.scene import CollisionScene
 from prompose_grasp.pipeline.command import Command, CommandNotUnderstood, CommandParser
 from prompose_grasp.pipeline.outcome import AttemptRecord, PickOutcome, ProgressEvent
 from prompose_grasp.robot.interfaces import RGBDFrame
+from prompose_grasp.robot.validator import CommandValidator, ValidatorConfig
 
 __all__ = ["PickAndPlace", "PickConfig"]
 
@@ -220,6 +221,9 @@ class PickAndPlace:
         config: `PickConfig`.
         on_event: called with each `ProgressEvent` (a live display).
         parser: the command parser (default: `CommandParser()`, MiniLM loaded on first use).
+        validator: the `CommandValidator` every planned motion is checked against before the first of its
+            moves is sent (default: the arm's own `validator` when it has one, else one for `robot_model`), so
+            a plan the arm would refuse halfway is dropped before anything moves.
     """
 
     def __init__(
@@ -234,6 +238,7 @@ class PickAndPlace:
         config: PickConfig | None = None,
         on_event: Callable[[ProgressEvent], None] | None = None,
         parser: CommandParser | None = None,
+        validator: CommandValidator | None = None,
     ):
         self.arm = arm
         self.gripper = gripper
@@ -249,6 +254,10 @@ class PickAndPlace:
         self.config = config or PickConfig()
         self.on_event = on_event
         self.parser = parser
+        self.validator = validator or getattr(arm, "validator", None)
+        if not isinstance(self.validator, CommandValidator):
+            limits = ValidatorConfig.for_robot(robot_model)
+            self.validator = CommandValidator(limits, fk_tcp=robot_model.fk_tcp)
 
     # ------------------------------------------------------------------------------------------------ run
     def run(self, command: str | Command) -> PickOutcome:
@@ -735,11 +744,23 @@ class PickAndPlace:
             except NoFeasibleMotion:
                 timings["execute"] += time.perf_counter() - t0
                 raise _Abort("collision", f"path to the pre-grasp hits {hit.name}: {hit.reason}") from None
+        detour = _timed(self.robot, W, MotionConfig()) if len(W) > 2 else None
+        try:  # every move passes the validator before the first is sent
+            if detour is not None:
+                self.validator.validate_trajectory(detour, q_now)
+            else:
+                self.validator.validate_joint_move(
+                    ik.q, cfg.joint_speed_rad_s, cfg.joint_accel_rad_s2, q_current=q_now
+                )
+            for T in (grasp.T_base_tcp, grasp.T_base_retreat):
+                self.validator.validate_linear_move(T, cfg.linear_speed_m_s, cfg.linear_accel_m_s2)
+        except UnsafeCommandError as exc:
+            timings["execute"] += time.perf_counter() - t0
+            raise _Abort("ik_failed", f"the pick would be refused by the validator: {exc}") from None
         try:
             self._open_for(grasp)
-            if len(W) > 2:
-                detour = _timed(self.robot, W, MotionConfig())
-                self._safe("to pre-grasp (detour)", lambda: self.arm.follow(detour))
+            if detour is not None:
+                self._safe("to pre-grasp (detour)", functools.partial(self.arm.follow, detour))
             else:
                 self._safe(
                     "to pre-grasp",
@@ -863,6 +884,13 @@ class PickAndPlace:
             raise _Abort(reason, str(exc)) from None
         finally:
             timings["plan"] += time.perf_counter() - t0
+        q = q_now
+        for seg in motion.segments:  # the whole motion passes the validator before anything moves
+            try:
+                self.validator.validate_trajectory(seg.trajectory, q)
+            except UnsafeCommandError as exc:
+                raise _Abort("ik_failed", f"{seg.name} would be refused by the validator: {exc}") from None
+            q = np.asarray(seg.trajectory.q[-1], dtype=np.float64)
         state["place"] = place
         t0 = time.perf_counter()
         width = 0.0
