@@ -13,7 +13,7 @@ import torch
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.perception.network import ProMPoseNet, load_estimator, network_config, save_checkpoint
-from prompose_grasp.perception.network.checkpoint import load_checkpoint, trained_state_dict
+from prompose_grasp.perception.network.checkpoint import export_weights, load_checkpoint, trained_state_dict
 
 try:
     from network_fixtures import random_inputs
@@ -67,6 +67,19 @@ def test_save_load_round_trip_is_exact(tmp_path):
     assert all(torch.equal(oa[k], ob[k]) for k in ("R", "t", "size", "tokens"))
     ckpt = load_checkpoint(path)
     assert ckpt["step"] == 7 and ckpt["note"] == "x"
+
+
+def test_export_drops_training_state_and_keeps_weights(tmp_path):
+    torch.manual_seed(5)
+    model = ProMPoseNet(TINY).eval()
+    opt = torch.optim.Adam(model.parameters())
+    src = save_checkpoint(tmp_path / "last.pt", model, step=9, optimizer=opt.state_dict(), train_config="{}")
+    dst = export_weights(src, tmp_path / "shipped.pt", trained_on="unit test")
+    ckpt = load_checkpoint(dst)
+    assert "optimizer" not in ckpt and ckpt["step"] == 9 and ckpt["trained_on"] == "unit test"
+    assert ckpt["train_config"] == "{}"
+    a, b = model.state_dict(), load_estimator(weights=dst).state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
 
 
 def test_load_is_strict(tmp_path):

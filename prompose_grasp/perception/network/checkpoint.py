@@ -22,7 +22,14 @@ from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.perception.network.config import NetworkConfig
 from prompose_grasp.perception.network.model import ProMPoseNet
 
-__all__ = ["CHECKPOINT_FORMAT", "load_checkpoint", "load_estimator", "save_checkpoint", "trained_state_dict"]
+__all__ = [
+    "CHECKPOINT_FORMAT",
+    "export_weights",
+    "load_checkpoint",
+    "load_estimator",
+    "save_checkpoint",
+    "trained_state_dict",
+]
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +79,16 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
             f"{p} has checkpoint version {ckpt.get('version')}; this library reads {CHECKPOINT_VERSION}"
         )
     return ckpt
+
+
+def export_weights(src: str | Path, dst: str | Path, **provenance: Any) -> Path:
+    """Copy a training checkpoint to `dst` without its optimiser and scheduler state (what one ships), with
+    `provenance` entries (how and on what it was trained) added; the weights are unchanged."""
+    ckpt = load_checkpoint(src)
+    model = ProMPoseNet(NetworkConfig.from_dict(ckpt["config"]))
+    load_state_strict(model, ckpt["model"])
+    keep = {"train_config": ckpt["train_config"]} if "train_config" in ckpt else {}
+    return save_checkpoint(dst, model, int(ckpt["step"]), **keep, **provenance)
 
 
 def load_state_strict(model: nn.Module, state: dict[str, torch.Tensor]) -> None:
