@@ -392,7 +392,9 @@ def _distinct_placements(cands: Candidates, rows: np.ndarray) -> tuple[np.ndarra
     # The closing line's direction up to sign: flip so that its largest component is positive.
     sign = np.sign(y[np.arange(len(y)), np.argmax(np.abs(y), axis=1)])
     key = np.column_stack([T[:, :3, 3], T[:, :3, 2], y * sign[:, None], cands.opening_m[rows]])
-    _, first, inverse = np.unique(np.round(key, 9), axis=0, return_index=True, return_inverse=True)
+    key = np.ascontiguousarray(np.round(key, 9) + 0.0)  # + 0.0: -0.0 becomes 0.0 (compared bitwise below)
+    rows_as_bytes = key.view(np.dtype((np.void, key.dtype.itemsize * key.shape[1]))).ravel()
+    _, first, inverse = np.unique(rows_as_bytes, return_index=True, return_inverse=True)
     return rows[first], inverse.ravel()
 
 
