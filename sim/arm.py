@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.interpolate import PchipInterpolator
 
-from prompose_grasp.errors import InvalidInputError, UnreachableError
+from prompose_grasp.errors import InvalidInputError, UnreachableError, UnsafeCommandError
 from prompose_grasp.geometry.se3 import make_T, so3_exp, so3_log
 from prompose_grasp.robot.interfaces import Arm, JointCommand, JointTrajectory, LinearCommand
 from prompose_grasp.robot.model import RobotModel
@@ -219,22 +219,34 @@ class SimArm(Arm):
         length = max(float(np.linalg.norm(dp)), float(np.linalg.norm(w)) * ROTATION_LENGTH_M)
         if length < 1e-9:
             return command
-        _, _, _, duration = trapezoid_profile(length, command.speed_m_s, command.accel_m_s2, np.zeros(1))
-        n = max(1, math.ceil(duration / self.waypoint_dt_s))
-        t_way = np.linspace(duration / n, duration, n)
-        s, _, _, _ = trapezoid_profile(length, command.speed_m_s, command.accel_m_s2, t_way)
-        q_way = np.empty((n, 6))
-        q_prev = q0
-        for k, frac in enumerate(s / length):
-            T = make_T(T0[:3, :3] @ so3_exp(frac * w), T0[:3, 3] + frac * dp)
-            result = self.robot.ik(T, q_seed=q_prev, frame="tcp")
-            if not result.success:
-                raise UnreachableError(
-                    f"move_linear: the line leaves the reachable space at {100 * frac:.0f} % of its length "
-                    f"(TCP at {np.round(T[:3, 3], 4).tolist()} m in base): {result.message}"
-                )
-            q_way[k] = q_prev = result.q
-        sent = self.validator.validate_trajectory(JointTrajectory(t_s=t_way, q=q_way), q0)
+        # Like a UR controller's moveL, the line is timed slower when the joint motion it needs would exceed
+        # the joint limits (near a wrist singularity a slow TCP line needs fast joints): up to three times
+        # at half the speed and a quarter of the acceleration; the validator has the last word each time.
+        speed, accel = command.speed_m_s, command.accel_m_s2
+        for attempt in range(4):
+            _, _, _, duration = trapezoid_profile(length, speed, accel, np.zeros(1))
+            n = max(1, math.ceil(duration / self.waypoint_dt_s))
+            t_way = np.linspace(duration / n, duration, n)
+            s, _, _, _ = trapezoid_profile(length, speed, accel, t_way)
+            q_way = np.empty((n, 6))
+            q_prev = q0
+            for k, frac in enumerate(s / length):
+                T = make_T(T0[:3, :3] @ so3_exp(frac * w), T0[:3, 3] + frac * dp)
+                result = self.robot.ik(T, q_seed=q_prev, frame="tcp")
+                if not result.success:
+                    raise UnreachableError(
+                        f"move_linear: the line leaves the reachable space at {100 * frac:.0f} % of its "
+                        f"length (TCP at {np.round(T[:3, 3], 4).tolist()} m in base): {result.message}"
+                    )
+                q_way[k] = q_prev = result.q
+            try:
+                sent = self.validator.validate_trajectory(JointTrajectory(t_s=t_way, q=q_way), q0)
+            except UnsafeCommandError as exc:
+                if attempt == 3 or not any(k in str(exc) for k in ("accelerate", "would move at")):
+                    raise
+                speed, accel = 0.5 * speed, 0.25 * accel
+                continue
+            break
         self._run_trajectory(sent, q0)
         return command
 

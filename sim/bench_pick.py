@@ -79,13 +79,24 @@ class OracleMaskEstimator:
         self.place_prompt = place_prompt
         self.instance_id = next(o.instance_id for o in world.objects if o.name == target)
 
+    def _camera_of(self, frame) -> str:
+        """The scene camera whose pose is the frame's (the fixed one, or the wrist camera on the arm)."""
+        if frame.T_base_cam is None:
+            return self.camera
+        T_world_cam = self.world.T_world_base @ np.asarray(frame.T_base_cam)
+        names = [n for n in self.world.cameras if self.world.intrinsics(n).width == frame.depth_m.shape[1]]
+        return min(
+            names or [self.camera],
+            key=lambda n: float(np.linalg.norm(self.world.T_world_cam(n)[:3, 3] - T_world_cam[:3, 3])),
+        )
+
     def _is_target(self, prompt: str) -> bool:
         return self.place_prompt is None or prompt.strip().lower() != self.place_prompt.strip().lower()
 
     def estimate(self, frame, prompt, prior=None, mask=None):
         if not self._is_target(prompt):
             return self.estimator.estimate(frame, prompt, prior=prior, mask=mask)
-        oracle = self.world.ground_truth_mask(self.camera) == self.instance_id
+        oracle = self.world.ground_truth_mask(self._camera_of(frame)) == self.instance_id
         if np.count_nonzero(oracle) < 50:  # a handful of pixels: hidden (e.g. lifted behind the gripper)
             raise ObjectNotFoundError(f"oracle mask: {self.target!r} is not visible")
         return self.estimator.estimate(frame, prompt, prior=prior, mask=oracle)

@@ -12,6 +12,7 @@ camera frame, timings, sim time), `DIR/overlay_0.png` (the estimate in green, gr
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import time
@@ -217,6 +218,7 @@ def run_episode(
     on_event: Callable[[ProgressEvent], None] | None = None,
     camera_wrapper: Callable[[Any], Any] | None = None,
     estimator_wrapper: Callable[[Any, str], Any] | None = None,
+    wrist: bool = True,
 ) -> EpisodeResult:
     """Build the scene, run the library's closed loop on it, then evaluate against ground truth.
 
@@ -230,6 +232,8 @@ def run_episode(
         camera_wrapper: wraps the `SimCamera` (fault injection in tests: dropped frames, depth holes).
         estimator_wrapper: (world, camera name) -> the estimator the loop uses, built around `estimator`
             (benchmarks: `sim.bench_pick.OracleMaskEstimator`, named oracle).
+        wrist: hand the scene's wrist camera (the first mounted one), if any, to the loop: it looks at the
+            target from above before grasping.
     """
     from prompose_grasp.perception.estimator import ProMPose
 
@@ -251,12 +255,14 @@ def run_episode(
             raise InvalidInputError(f"scene {scene} has no robot with a gripper")
         rng = np.random.default_rng(seed)
         sim_cam = SimCamera(world, camera, rng=rng)
+        mounted = [c["name"] for c in spec.cameras if "mount" in c]
+        wrist_cam = SimCamera(world, mounted[0], rng=rng) if (wrist and mounted) else None
         gripper = ParallelJawGripper(world) if info.gripper == "parallel_jaw" else SuctionGripper(world)
         arm = SimArm(world)
         recorder = _Recorder(world, camera) if video else None
         start = {o.name: world.T_world_obj(o.name) for o in world.objects}
         t0_sim = float(world.data.time)
-        with arm, gripper, sim_cam:
+        with arm, gripper, sim_cam, wrist_cam if wrist_cam is not None else contextlib.nullcontext():
             keeper = _KeepFrames(camera_wrapper(sim_cam) if camera_wrapper is not None else sim_cam)
             cam = keeper
             loop_estimator = estimator if estimator_wrapper is None else estimator_wrapper(world, camera)
@@ -270,6 +276,7 @@ def run_episode(
                 place_targets=place_targets_of(world, _patterns(spec)),
                 config=config,
                 on_event=on_event,
+                wrist_camera=wrist_cam,
             )
             if recorder is not None:
                 world.add_step_hook(recorder)

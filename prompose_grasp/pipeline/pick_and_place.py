@@ -118,6 +118,11 @@ class PickConfig:
             amodal box reaching down to the floor through a stack: from above, the height of a carton on
             other cartons is not seen) is carried and put down as this tall, its top kept: the transfer
             clears the neighbours and the place releases just above the surface.
+        wrist_look_m: with a wrist camera, the arm first looks at the target from the best grasp's pre-grasp
+            raised this much more; the closer estimate replaces the fixed camera's and the grasps are planned
+            again on it (tracking the target on approach) [m].
+        wrist_max_shift_m: a wrist estimate farther than this from the fixed camera's is another object and
+            is ignored [m].
         pad_depth_margin_m: jaw grasps with the pads' centre this much deeper than half a pad inside the
             estimated box are tried first (robust to the estimate's ~1 cm error) [m].
         grasp: `GraspConfig` of the planner.
@@ -145,6 +150,8 @@ class PickConfig:
     max_lift_m: float = 0.35
     pad_depth_margin_m: float = 0.01
     max_object_height_m: float | None = None
+    wrist_look_m: float = 0.15
+    wrist_max_shift_m: float = 0.10
     grasp: GraspConfig | None = None
 
     def __post_init__(self) -> None:
@@ -173,6 +180,8 @@ class PickConfig:
             "lift_clearance_m",
             "max_lift_m",
             "pad_depth_margin_m",
+            "wrist_look_m",
+            "wrist_max_shift_m",
         )
         for name in floats:
             v = float(getattr(self, name))
@@ -221,6 +230,8 @@ class PickAndPlace:
         config: `PickConfig`.
         on_event: called with each `ProgressEvent` (a live display).
         parser: the command parser (default: `CommandParser()`, MiniLM loaded on first use).
+        wrist_camera: a camera on the arm (frames with `T_base_cam` at capture), or None: the target is
+            observed again from above it before the grasp (`PickConfig.wrist_look_m`).
         validator: the `CommandValidator` every planned motion is checked against before the first of its
             moves is sent (default: the arm's own `validator` when it has one, else one for `robot_model`), so
             a plan the arm would refuse halfway is dropped before anything moves.
@@ -239,8 +250,10 @@ class PickAndPlace:
         on_event: Callable[[ProgressEvent], None] | None = None,
         parser: CommandParser | None = None,
         validator: CommandValidator | None = None,
+        wrist_camera: Any | None = None,
     ):
         self.arm = arm
+        self.wrist_camera = wrist_camera
         self.gripper = gripper
         self.camera = camera
         self.estimator = estimator
@@ -602,6 +615,14 @@ class PickAndPlace:
         if obs is not observations[0]:  # the estimate actually used comes last in the outcome
             state["estimates"].append(obs.estimate)
             state["T_base_cams"].append(np.asarray(obs.frame.T_base_cam, dtype=np.float64))
+        if self.wrist_camera is not None:
+            refined = self._wrist_look(obs, plan.grasps[0], scene, cmd, timings, state)
+            if refined is not None:
+                try:
+                    plan, scene = self._plan(refined, np.asarray(self.arm.joint_positions()), timings)
+                    obs = refined
+                except _Abort as exc:  # the fixed camera's plan stands
+                    logger.info("no grasp on the wrist estimate (%s); keeping the first plan", exc.message)
         grasps = self._robust_first(plan.grasps, obs.target)
         held_scene = None
         if place_target is not None:
@@ -609,7 +630,7 @@ class PickAndPlace:
         failures: list[_Abort] = []
         for i, planned in enumerate(grasps[: self.config.grasps_per_estimate]):
             self._check_time(t_start)
-            grasp = self._pressed(planned)
+            grasp = self._deepened(self._pressed(planned), obs.target, scene)
             n = len(state["attempts"]) + 1
             self._emit(
                 "execute",
@@ -637,6 +658,65 @@ class PickAndPlace:
         if not failures:
             raise _Abort("no_feasible_grasp", "the plan held no grasp")
         raise failures[-1]
+
+    def _wrist_look(
+        self,
+        obs: _Observation,
+        grasp: Any,
+        scene: CollisionScene,
+        cmd: Command,
+        timings: dict[str, float],
+        state: dict[str, Any],
+    ) -> _Observation | None:
+        """Move the wrist camera above the target (the best grasp's pre-grasp, `wrist_look_m` higher), observe
+        and estimate there; the observation with that estimate, or None (unreachable look pose, nothing seen,
+        or an estimate too far from the first: another object)."""
+        cfg = self.config
+        T_look = np.array(grasp.T_base_pregrasp)
+        T_look[:3, 3] -= cfg.wrist_look_m * T_look[:3, 2]  # further back along the approach
+        q_now = np.asarray(self.arm.joint_positions(), dtype=np.float64)
+        ik = self.robot.ik(T_look, q_seed=grasp.q, frame="tcp")
+        if not ik.success:
+            return None
+        _, hit = check_path(self.robot, scene, np.array([q_now, ik.q]), self.gripper_geometry, 0.0, True)
+        if hit is not None:
+            return None
+        try:
+            self.validator.validate_joint_move(ik.q, cfg.joint_speed_rad_s, cfg.joint_accel_rad_s2, q_now)
+        except UnsafeCommandError:
+            return None
+        t0 = time.perf_counter()
+        self._emit("observe", "looking with the wrist camera", 0.35)
+        try:
+            self.arm.move_joints(ik.q, cfg.joint_speed_rad_s, cfg.joint_accel_rad_s2)
+        except (UnreachableError, UnsafeCommandError) as exc:
+            logger.info("wrist look refused: %s", exc)
+            return None
+        finally:
+            timings["execute"] += time.perf_counter() - t0
+        camera = self.camera
+        try:
+            self.camera = self.wrist_camera
+            frame, ests = self._estimates_once(cmd.object_prompt, timings)
+        except _Abort as exc:
+            logger.info("wrist camera: %s", exc.message)
+            return None
+        finally:
+            self.camera = camera
+        T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
+        best = None
+        for est in ests:
+            target, _ = self._to_base(est, T_base_cam, "target")
+            shift = float(np.linalg.norm(target.pose.t - obs.target.pose.t))
+            if shift <= cfg.wrist_max_shift_m and (best is None or shift < best[0]):
+                best = (shift, est, target)
+        if best is None:
+            return None
+        shift, est, target = best
+        state["estimates"].append(est)
+        state["T_base_cams"].append(T_base_cam)
+        self._emit("estimate", f"wrist camera: the target is {1e3 * shift:.0f} mm from the first view", 0.4)
+        return _Observation(obs.frame, est, target, obs.support, obs.points_base, obs.q_seen)
 
     def _held_scene(
         self, obs: _Observation, target: PlaceTarget, state: dict[str, Any], timings: dict[str, float]
@@ -692,6 +772,34 @@ class PickAndPlace:
 
         flags = [deep(g) for g in grasps]
         return [g for g, f in zip(grasps, flags) if f] + [g for g, f in zip(grasps, flags) if not f]
+
+    def _deepened(self, grasp: Any, target: ObjectModel, scene: CollisionScene) -> Any:
+        """A parallel-jaw grasp whose pads reach less than half a pad plus `pad_depth_margin_m` into the
+        estimated box (a rim grasp at the very top edge) moved that much deeper along its approach, when the
+        deeper grasp has IK on the same branch and its approach from the pre-grasp is free (jaws open, the
+        target included): pads at the rim's top close above it when the estimate is a centimetre high."""
+        if self.gripper_kind != "parallel_jaw" or grasp.q is None:
+            return grasp
+        pad_half = 0.5 * float(getattr(self.gripper_geometry, "pad_size_m", (0, 0, 0.03))[2])
+        a = grasp.T_base_tcp[:3, 2]
+        depth = float(np.max((target.pose.corners() - grasp.T_base_tcp[:3, 3]) @ -a))
+        extra = min(pad_half + self.config.pad_depth_margin_m - depth, _MAX_DEEPEN_M)
+        if extra <= 0.002:
+            return grasp
+        T = np.array(grasp.T_base_tcp)
+        T[:3, 3] += extra * a
+        ik = self.robot.ik(T, q_seed=grasp.q, frame="tcp")
+        pre = self.robot.ik(grasp.T_base_pregrasp, q_seed=grasp.q, frame="tcp")
+        if not (ik.success and pre.success) or float(np.max(np.abs(ik.q - grasp.q))) > 0.2:
+            return grasp
+        opening = min(float(self.gripper_geometry.stroke_m), grasp.opening_m + self.config.open_margin_m)
+        _, hit = check_path(self.robot, scene, np.array([pre.q, ik.q]), self.gripper_geometry, opening, True)
+        if hit is not None:
+            return grasp
+        retreat = np.array(grasp.T_base_retreat)
+        retreat[:3, 3] += extra * a
+        logger.info("grasp moved %.1f mm deeper along its approach", 1e3 * extra)
+        return dataclasses.replace(grasp, T_base_tcp=T, q=ik.q, T_base_retreat=retreat)
 
     def _pressed(self, grasp: Any) -> Any:
         """A suction grasp pressed `compliance_m` into its face along the approach (the bellows give; the cup
@@ -929,6 +1037,8 @@ class PickAndPlace:
 
 #: Prior families that hold things inside them (a place "on" one of them puts the object in).
 _CONTAINERS = ("bowl", "cup", "mug", "bin", "basket", "bucket", "pot", "tray")
+#: The most a grasp is moved deeper along its approach by `_deepened` [m].
+_MAX_DEEPEN_M = 0.03
 #: Observed points this close to a place surface are the surface itself [m] (sensor noise at 1-2 m).
 _SURFACE_BAND_M = 0.02
 
