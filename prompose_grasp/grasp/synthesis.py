@@ -426,19 +426,21 @@ def antipodal_grasps(
         )
 
     def exact(i1: np.ndarray, i2: np.ndarray):
-        """The exact tests and quality of pairs (i1, i2), each pair computed on its own."""
+        """The exact tests and quality of pairs (i1, i2), each pair computed on its own; `pos` are the
+        survivors' positions in the input."""
+        pos = np.arange(len(i1))
         d = P[i2] - P[i1]
         dist = np.linalg.norm(d, axis=1)
         ok = (dist > 1e-3) & (dist + 2.0 * config.min_clearance_m <= gripper.stroke_m)
-        i1, i2, d, dist = i1[ok], i2[ok], d[ok], dist[ok]
+        i1, i2, d, dist, pos = i1[ok], i2[ok], d[ok], dist[ok], pos[ok]
         u = d / dist[:, None]
         c1 = -np.einsum("ij,ij->i", normals[i1], u)  # the pad at p1 pushes along +u, into the surface
         c2 = np.einsum("ij,ij->i", normals[i2], u)
         ok = (c1 >= cos_cone) & (c2 >= cos_cone)
-        i1, i2, u, dist, c1, c2 = i1[ok], i2[ok], u[ok], dist[ok], c1[ok], c2[ok]
+        i1, i2, u, dist, c1, c2, pos = i1[ok], i2[ok], u[ok], dist[ok], c1[ok], c2[ok], pos[ok]
         p1_obj, p2_obj = (P[i1] - c) @ R, (P[i2] - c) @ R
         mask, label = _region_mask(target.family, p1_obj, p2_obj, u @ R, size)
-        i1, i2, u, dist, c1, c2, label = (x[mask] for x in (i1, i2, u, dist, c1, c2, label))
+        i1, i2, u, dist, c1, c2, label, pos = (x[mask] for x in (i1, i2, u, dist, c1, c2, label, pos))
         mid = 0.5 * (P[i1] + P[i2])
         dm = com - mid
         off = np.linalg.norm(dm - np.einsum("ij,ij->i", dm, u)[:, None] * u, axis=1)
@@ -446,41 +448,45 @@ def antipodal_grasps(
         pair_q = (
             0.35 * margin + 0.25 * np.clip(1.0 - off / max_dim, 0, 1) + 0.1 * (1.0 - dist / gripper.stroke_m)
         )
-        return i1, i2, u, dist, c1, c2, label, off, pair_q
+        return i1, i2, u, dist, c1, c2, label, off, pair_q, pos
 
     # The same quality from the matrices (rounding aside), to rank the loose pairs: the exact tests then run
     # on the best ones only, enough of them that every pair of the exact top `antipodal_pairs` is among them
     # (their approximate quality is within 1e-9 of the exact one, far above the rounding).
     flat = np.flatnonzero(np.triu(loose, k=1))  # row-major: the order of the pairs' ties
-    n = len(P)
-    fi, fj = flat // n, flat % n
+    fi, fj = np.divmod(flat, len(P))
     dist_f = np.maximum(dist_m.ravel()[flat], 1e-300)
     c1_f = -(NX[fi, fj] - nx[fi]) / dist_f
     c2_f = (nx[fj] - NX[fj, fi]) / dist_f
-    W = com - P
-    t_f = (np.einsum("ij,ij->i", W[fi], X[fj]) - np.einsum("ij,ij->i", W[fi], X[fi])) / dist_f
-    off_f = np.sqrt(np.maximum(np.einsum("ij,ij->i", W[fi], W[fi]) - t_f**2, 0.0))
+    W = com - P  # (com - p_i) . (p_j - p_i) = w_i . x_j - w_i . x_i
+    WX = W @ X.T
+    wx = np.einsum("ij,ij->i", W, X)
+    ww = np.einsum("ij,ij->i", W, W)
+    t_f = (WX[fi, fj] - wx[fi]) / dist_f
+    off_f = np.sqrt(np.maximum(ww[fi] - t_f**2, 0.0))
     margin_f = np.arccos(np.clip(np.minimum(c1_f, c2_f), -1, 1)) / -mu_angle + 1.0
     q_f = (
         0.35 * margin_f
         + 0.25 * np.clip(1.0 - off_f / max_dim, 0, 1)
         + 0.1 * (1.0 - dist_f / gripper.stroke_m)
     )
-    order = np.argsort(-q_f, kind="stable")
     K = config.antipodal_pairs
-    m = min(len(order), 4 * K)
+    S = len(q_f)
+    m = min(S, 4 * K)
     while True:
-        sub = np.sort(order[:m])  # back in row-major order
+        # The m best by approximate quality (any order; ties at the m-th value may fall either way, which
+        # the stopping test below allows for), back in row-major order.
+        sub = np.sort(np.argpartition(-q_f, m - 1)[:m]) if m < S else np.arange(S)
         res = exact(fi[sub], fj[sub])
-        if m == len(order):
+        if m == S:
             break
         if len(res[0]) >= K:
-            # The K-th best exact survivor's approximate quality: nothing beyond m can beat it.
-            kth = np.sort(q_f[sub][np.isin(fi[sub] * n + fj[sub], res[0] * n + res[1])])[::-1][K - 1]
-            if q_f[order[m - 1]] < kth - 1e-9:
+            # The K-th best exact survivor's approximate quality: nothing outside the m can beat it.
+            kth = -np.partition(-q_f[sub][res[-1]], K - 1)[K - 1]
+            if q_f[sub].min() < kth - 1e-9:
                 break
-        m = min(len(order), 2 * m)
-    i1, i2, u, dist, c1, c2, label, off, pair_q = res
+        m = min(S, 2 * m)
+    i1, i2, u, dist, c1, c2, label, off, pair_q, _ = res
     if len(i1) == 0:
         return Candidates.empty()
     keep = np.argsort(-pair_q, kind="stable")[:K]
