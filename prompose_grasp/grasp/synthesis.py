@@ -576,6 +576,22 @@ def _flat_under_cups(
     return np.all(d.reshape(len(centres), -1) <= spacing, axis=1)
 
 
+def _mesh_is_the_box(target: ObjectModel) -> bool:
+    """The target's mesh is its estimated box (a carton prior: closed, the box's bounds and volume): every
+    face is then flat all over, and sampling it for flatness is not needed."""
+    mesh = target.mesh
+    V = np.asarray(mesh.vertices, dtype=np.float64)
+    if len(V) > 64 or not getattr(mesh, "is_watertight", False):
+        return False
+    local = (V - target.pose.t) @ target.pose.R
+    half = np.asarray(target.pose.size) / 2.0
+    tol = 1e-6 * float(np.max(half))
+    if np.any(np.abs(local.max(axis=0) - half) > tol) or np.any(np.abs(local.min(axis=0) + half) > tol):
+        return False
+    box_volume = float(np.prod(2.0 * half))
+    return abs(abs(float(mesh.volume)) - box_volume) <= 1e-6 * box_volume
+
+
 def suction_grasps(
     target: ObjectModel, cup: SuctionCupGeometry, config: GraspConfig, support: Plane | None = None
 ) -> Candidates:
@@ -586,7 +602,7 @@ def suction_grasps(
     r = cup.cup_radius_m
     samples = normals = None
     spacing = 0.0
-    if target.mesh is not None:
+    if target.mesh is not None and not _mesh_is_the_box(target):
         import trimesh
 
         n_samples = 4 * config.mesh_samples

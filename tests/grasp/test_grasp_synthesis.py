@@ -193,3 +193,19 @@ def test_antipodal_pairs_are_the_best_of_all_pairs(pairs):
     got = c.contacts[::rows_per_pair]
     assert len(got) == len(best)
     np.testing.assert_allclose(got, [[P[i], P[j]] for _, i, j in best], atol=1e-12)
+
+
+def test_a_carton_whose_mesh_is_its_box_seals_everywhere_the_cup_fits():
+    # The prior's mesh is the estimated box itself: every face is flat all over, as for the box alone.
+    R = random_rotation(np.random.default_rng(2))
+    size = np.array([0.3, 0.2, 0.25])
+    mesh = trimesh.creation.box(extents=size)
+    mesh.apply_transform(
+        np.block([[R, np.array([[0.1], [-0.5], [0.2]])], [np.zeros((1, 3)), np.ones((1, 1))]])
+    )
+    pose = Pose9D(R, [0.1, -0.5, 0.2], size)
+    cup = SuctionCupGeometry()
+    with_mesh = suction_grasps(ObjectModel("c", pose, mesh=mesh), cup, CONFIG, Plane.horizontal(-1.0))
+    box_only = suction_grasps(ObjectModel("c", pose), cup, CONFIG, Plane.horizontal(-1.0))
+    assert len(with_mesh) == len(box_only) > 0 and np.all(with_mesh.pre_rejected == "")
+    np.testing.assert_allclose(with_mesh.T_base_tcp, box_only.T_base_tcp, atol=1e-12)
