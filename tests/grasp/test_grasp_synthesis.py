@@ -208,4 +208,7 @@ def test_a_carton_whose_mesh_is_its_box_seals_everywhere_the_cup_fits():
     with_mesh = suction_grasps(ObjectModel("c", pose, mesh=mesh), cup, CONFIG, Plane.horizontal(-1.0))
     box_only = suction_grasps(ObjectModel("c", pose), cup, CONFIG, Plane.horizontal(-1.0))
     assert len(with_mesh) == len(box_only) > 0 and np.all(with_mesh.pre_rejected == "")
-    np.testing.assert_allclose(with_mesh.T_base_tcp, box_only.T_base_tcp, atol=1e-12)
+    # The same poses (the mesh's centre of mass differs from the box centre by rounding, which may reorder
+    # grid points at equal distance from it): compare as sorted sets, to 1e-9 m.
+    a, b = (np.round(c.T_base_tcp.reshape(len(c), -1), 9) for c in (with_mesh, box_only))
+    np.testing.assert_allclose(a[np.lexsort(a.T)], b[np.lexsort(b.T)], atol=2e-9)
