@@ -355,14 +355,23 @@ def _free_branches(
     then the other in-limit ones nearest the seed, each verified by forward kinematics) whose link capsules
     are clear of the scene, or None. One batched arm query per branch rank."""
     out: list[np.ndarray | None] = [None] * len(idx)
-    lists = [
-        _branch_order(q_all[i], branches[i])[: cfg.arm_branches] if ok else [] for i, ok in zip(idx, rows_ok)
-    ]
+    # `_branch_order` on arrays: the picked solution, then the other existing branches (nearest first) that
+    # differ from it; alt_rank numbers those alternatives 1, 2, ...
+    q_first = q_all[idx]
+    B = branches[idx]  # (C, 8, 6)
+    with np.errstate(invalid="ignore"):
+        alt = np.all(np.isfinite(B), axis=2) & (np.max(np.abs(B - q_first[:, None, :]), axis=2) > 1e-9)
+    alt_rank = np.where(alt, np.cumsum(alt, axis=1), 0)
     for b in range(cfg.arm_branches):
-        rows = [r for r in range(len(idx)) if out[r] is None and len(lists[r]) > b]
+        if b == 0:
+            rows = [r for r in range(len(idx)) if rows_ok[r]]
+            Q = q_first[rows]
+        else:
+            has = alt_rank == b
+            rows = [r for r in range(len(idx)) if rows_ok[r] and out[r] is None and has[r].any()]
+            Q = B[rows, np.argmax(has[rows], axis=1)] if rows else np.zeros((0, 6))
         if not rows:
             break
-        Q = np.array([lists[r][b] for r in rows])
         if b > 0:
             # Branches other than the picked one are unverified: keep those whose forward kinematics reach.
             good = _verified_batch(robot, Q, T_base_flange[rows])
