@@ -13,6 +13,9 @@ Per frame of the split (a dataset written by `python -m sim.dataset`; test categ
 - `ours_tracked`: `ProMPose.track` over each scene's frames for every object prompt of the scene; the
   camera pose `T_base_cam` is known (the world plays the robot base, as for a wrist camera with forward
   kinematics). Gives the tracking speed (frames after the first) and first-frame latency.
+- `ours_tracked_oracle_mask`: `ProMPose.track(..., mask=<ground-truth mask of the first frame>)` for every
+  test-category object of the scene's first frame: the tracker alone (later frames use no ground truth;
+  a lost track is grounded again), to compare with `ours_oracle_mask` frame by frame.
 
 Every method is scored by `compute_nocs_map` in the three IoU modes (`exact` is the headline, see
 docs/metrics.md). Only this script reads ground truth.
@@ -46,7 +49,7 @@ __all__ = ["METHODS", "run_estimator_benchmark"]
 
 log = logging.getLogger(__name__)
 
-METHODS = ("ours_oracle_mask", "obb_oracle_mask", "ours", "obb", "ours_tracked")
+METHODS = ("ours_oracle_mask", "obb_oracle_mask", "ours", "obb", "ours_tracked", "ours_tracked_oracle_mask")
 
 #: Objects with fewer valid depth pixels than this are skipped by every method alike (still counted as GT).
 _MIN_POINTS = 50
@@ -89,6 +92,7 @@ def run_estimator_benchmark(
         if not frames:
             break
         tracked = _track_scene(estimator, frames, categories, times)
+        tracked_oracle = _track_scene_oracle_mask(estimator, frames, categories, times)
         priors: dict[int, ShapePrior] = {}
         for k, sf in enumerate(frames):
             gts = [(synsets.index(o.category), o.pose, o.handle_visible)
@@ -97,6 +101,7 @@ def run_estimator_benchmark(
                 symmetry[o.category] = o.symmetry
             preds = _frame_predictions(estimator, sf, categories, synsets, candidates, priors, times)
             preds["ours_tracked"] = tracked[k]
+            preds["ours_tracked_oracle_mask"] = tracked_oracle[k]
             for m in METHODS:
                 per_image[m].append(nocs_image_result(gts, preds[m]))
             frames_done += 1
@@ -193,6 +198,32 @@ def _track_scene(
                 break
             times["track_first_frame" if k == 0 else "track_update"].append(time.perf_counter() - t0)
             per_frame[k].append((synsets.index(category), est.pose, 1.0))
+    return per_frame
+
+
+def _track_scene_oracle_mask(
+    estimator: ProMPose, frames: list[SyntheticFrame], categories: list[str], times: dict[str, list[float]]
+) -> list[list[tuple[int, Pose9D, float]]]:
+    """Track every test-category object of the first frame from its ground-truth mask (first frame only)."""
+    synsets = ["BG", *categories]
+    per_frame: list[list[tuple[int, Pose9D, float]]] = [[] for _ in frames]
+    first = frames[0]
+    for obj in first.ground_truth_objects:
+        if obj.category not in categories:
+            continue
+        oracle_mask = first.ground_truth_instance_mask == obj.instance_id
+        if len(back_project(first.frame.depth_m, first.frame.intrinsics, mask=oracle_mask)) < _MIN_POINTS:
+            continue
+        stream = estimator.track((sf.frame for sf in frames), obj.prompt, mask=oracle_mask)
+        for k in range(len(frames)):
+            t0 = time.perf_counter()
+            try:
+                est = next(stream)
+            except PromposeError as exc:  # a lost, unrecoverable track ends this object's sequence
+                log.info("tracking %r stopped at frame %d: %s", obj.prompt, k, exc)
+                break
+            times["track_oracle_update" if k else "track_oracle_first_frame"].append(time.perf_counter() - t0)
+            per_frame[k].append((synsets.index(obj.category), est.pose, 1.0))
     return per_frame
 
 

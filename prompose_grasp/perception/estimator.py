@@ -216,14 +216,22 @@ class ProMPose:
         return estimates
 
     def track(
-        self, frames: Iterable[RGBDFrame], prompt: str, prior: ShapePrior | None = None
+        self,
+        frames: Iterable[RGBDFrame],
+        prompt: str,
+        prior: ShapePrior | None = None,
+        mask: np.ndarray | None = None,
     ) -> Iterator[Estimate]:
-        """Estimates frame after frame, refined over a sliding window (see `perception.tracker`)."""
+        """Estimates frame after frame, refined over a sliding window (see `perception.tracker`).
+
+        `mask`: (H, W) bool pixels of the object in the first frame (your own segmentation); the track then
+        starts from it instead of grounding the prompt (a lost track is grounded again).
+        """
         from prompose_grasp.perception.tracker import Tracker
 
         tracker = Tracker(self, _check_prompt(prompt), prior=prior)
-        for frame in frames:
-            yield tracker.update(_check_frame(frame))
+        for k, frame in enumerate(frames):
+            yield tracker.update(_check_frame(frame), mask=mask if k == 0 else None)
 
     # ------------------------------------------------------------------------------------------------------
 

@@ -1,16 +1,23 @@
 """Temporal refinement over a sliding window of frames (the paper's section 3.6, as a geometric tracker).
 
-The first frame runs the whole estimator (grounding, prior, cold multi-hypothesis fit). Later frames are
-cheap: the previous box, carried into the new camera frame (through `T_base_cam` when the frames carry it,
-e.g. a wrist camera with the arm's forward kinematics; else the object is assumed still in the camera frame),
-selects the depth points near it, and the fit is warm-started from it. Observations of the last `window`
-frames are kept in the object frame and fused: each new frame's fit sees the union of the views, so the sides
-seen earlier keep constraining the box and the anisotropic size becomes observable as the camera moves (the
-paper's claim for its temporal window). The size of a rigid object does not change, so the reported size is
-the median over the window; rotation and translation are blended with the prediction to suppress jitter.
+The first frame runs the whole estimator (grounding, or the caller's mask; prior; cold multi-hypothesis fit).
+Later frames are cheap: the previous box, carried into the new camera frame (through `T_base_cam` when the
+frames carry it, e.g. a wrist camera with the arm's forward kinematics; else the object is assumed still in
+the camera frame), selects the depth points near it (inside the grown box and near the posed prior's surface,
+so a neighbour touching the box is left out), and the fit is warm-started from it.
 
-The track is declared lost (and re-initialised by grounding) when too few points are found near the
-prediction, or the fit's residual is large: the object left the view, was occluded, or was moved.
+Fusion: the points of the last `window` frames are kept and each new frame's fit sees their union, so the
+sides seen earlier keep constraining the box and the amodal size becomes observable as the camera moves (the
+paper's claim for its temporal window). With `T_base_cam` the views are kept in the base frame: the object is
+taken as still in the world, so the fused cloud is independent of the poses estimated on the way (views kept
+in the object frame follow the estimate that placed them: an error of the first frame is baked into every
+later view and the fused cloud then confirms it). Without `T_base_cam` the object frame is the only common
+frame. The size of a rigid object does not change: it is smoothed in log space like translation and rotation.
+
+The current frame's own points decide whether the fused fit holds: their RMS distance to the fitted prior
+surface above `max_rms_m` means the object moved against the world (then the current frame alone is fitted
+and the window restarts from it) or the track is lost (too few points near the prediction, or the single-frame
+fit is bad too): then the object is grounded again.
 """
 
 from __future__ import annotations
@@ -23,11 +30,12 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.camera import CameraIntrinsics
-from prompose_grasp.geometry.pointcloud import back_project, depth_to_point_map, farthest_point_sampling
+from prompose_grasp.geometry.pointcloud import back_project, depth_to_point_map
 from prompose_grasp.geometry.se3 import invert_T, so3_exp, so3_log
 from prompose_grasp.perception.estimator import Estimate, plane_vector
 from prompose_grasp.perception.fit import fit_pose
@@ -51,30 +59,61 @@ class TrackerConfig:
         window: frames kept for fusion and smoothing (the paper's n = 16).
         roi_margin_m: observed points up to this far outside the predicted box belong to the object [m]; it
             must exceed the motion between frames that the prediction does not explain.
+        surface_margin_m: of those, only points within this distance of the posed prior's surface are kept
+            [m] (a neighbouring object inside the grown box is not this object's surface).
         plane_clearance_m: points this close to the support plane are the table, not the object [m]
             (the grounder's height cut, `GroundingConfig.min_height_m`).
-        points_per_view: points kept of each frame for fusion (farthest point sampling).
+        points_per_view: points kept of each frame for fusion (a seeded random subset).
         min_points: fewer points than this near the prediction means the track is lost.
         max_rms_m: a fit whose root-mean-square Chamfer residual exceeds this is a lost track [m]: a right
             fit leaves the sensor noise (a few mm at 1 m), a wrong one centimetres.
-        blend: weight of the new measurement against the prediction for rotation and translation, in (0, 1];
-            1 turns smoothing off.
+        blend: weight of the new measurement against the prediction for rotation, translation and log size,
+            in (0, 1]; 1 turns smoothing off.
+        refit_angle_deg: when the direction from the object to the camera has turned by more than this since
+            the last multi-hypothesis fit, the fused cloud gets a cold multi-hypothesis fit too, and the
+            better of it and the tracked fit (lower robust L_geo on the same points) goes on: a wrong first
+            estimate (a mug's yaw with the handle hidden, a flipped box seen edge-on) is corrected once
+            the new views show what the first did not. 180 turns it off (a warm start cannot jump between
+            basins). Costs one cold fit (~250 ms) per such turn; at 30 Hz the view turns that far rarely.
+        compare_points: observed points of this frame on which the two candidates are compared.
+        refit_gain: the cold fit replaces the tracked one when its score is below this times the tracked
+            one's (hysteresis: the tracked fit has the window's views behind it).
+        old_view_weight: weight of the earlier views' term in that score.
+        pixel_stride: every k-th pixel of the predicted box's image rectangle is back-projected on tracked
+            frames (the warm fit uses a few hundred points; the mask marks each sampled pixel's k x k block).
+        prior_points: prior surface samples (an even stride) used to select points near the posed prior and
+            to measure the residual.
+        fit_iterations: Gauss-Newton iterations of a tracked frame's warm fit (the prediction is close).
     """
 
     window: int = 16
     roi_margin_m: float = 0.03
+    surface_margin_m: float = 0.02
     plane_clearance_m: float = 0.008
-    points_per_view: int = 256
+    points_per_view: int = 512
     min_points: int = 50
     max_rms_m: float = 0.015
     blend: float = 0.6
+    refit_angle_deg: float = 20.0
+    compare_points: int = 1024
+    refit_gain: float = 1.0
+    old_view_weight: float = 1.0
+    pixel_stride: int = 2
+    prior_points: int = 1024
+    fit_iterations: int = 8
 
     def __post_init__(self) -> None:
         if self.window < 1 or self.points_per_view < 8 or self.min_points < 4:
             raise InvalidInputError("TrackerConfig needs window >= 1, points_per_view >= 8, min_points >= 4")
+        if self.pixel_stride < 1 or self.prior_points < 8 or self.fit_iterations < 0:
+            raise InvalidInputError(
+                "TrackerConfig needs pixel_stride >= 1, prior_points >= 8 and fit_iterations >= 0"
+            )
+        if not 0.0 < self.refit_angle_deg <= 180.0 or self.compare_points < 8:
+            raise InvalidInputError("TrackerConfig needs 0 < refit_angle_deg <= 180 and compare_points >= 8")
         if not 0.0 < self.blend <= 1.0:
             raise InvalidInputError(f"TrackerConfig.blend must be in (0, 1], got {self.blend}")
-        for name in ("roi_margin_m", "plane_clearance_m", "max_rms_m"):
+        for name in ("roi_margin_m", "surface_margin_m", "plane_clearance_m", "max_rms_m"):
             if not getattr(self, name) > 0:
                 raise InvalidInputError(f"TrackerConfig.{name} must be > 0")
 
@@ -85,9 +124,10 @@ def _plane_in(plane: SupportPlane, T_new_old: np.ndarray) -> SupportPlane:
     return SupportPlane(n, plane.offset_m - float(n @ T_new_old[:3, 3]), plane.inlier_fraction)
 
 
-def _blend(pred: Pose9D, meas: Pose9D, w: float, size: np.ndarray) -> Pose9D:
-    """Geodesic blend of rotation and linear blend of translation; w = weight of `meas`."""
+def _blend(pred: Pose9D, meas: Pose9D, w: float) -> Pose9D:
+    """Geodesic blend of rotation, linear blend of translation and of log size; w = weight of `meas`."""
     R = pred.R @ so3_exp(w * so3_log(pred.R.T @ meas.R))
+    size = np.exp((1.0 - w) * np.log(pred.size) + w * np.log(meas.size))
     return Pose9D(R, (1.0 - w) * pred.t + w * meas.t, size)
 
 
@@ -108,20 +148,31 @@ class Tracker:
         self.prompt = prompt
         self.prior = prior
         self.config = config or TrackerConfig()
-        self._views: deque[np.ndarray] = deque(maxlen=self.config.window)  # (k, 3) object-frame points
-        self._sizes: deque[np.ndarray] = deque(maxlen=self.config.window)
+        # (k, 3) points of each view in the base frame (`_in_base`) or else in the object frame [m]
+        self._views: deque[np.ndarray] = deque(maxlen=self.config.window)
+        self._in_base = False
         self._pose: Pose9D | None = None
         self._plane: SupportPlane | None = None
         self._T_base_cam: np.ndarray | None = None
         self._frame_index = 0
+        self._rng = np.random.default_rng(0)
+        self._prior_cache: tuple[ShapePrior, np.ndarray] | None = None
+        self._refit_view: np.ndarray | None = None  # unit object -> camera direction at the last cold fit
         self.reinitialisations = 0
+        self.window_restarts = 0
+        self.refits = 0
+        self.refits_taken = 0
 
-    def update(self, frame: RGBDFrame) -> Estimate:
-        """The estimate for the next frame of the sequence."""
+    def update(self, frame: RGBDFrame, mask: np.ndarray | None = None) -> Estimate:
+        """The estimate for the next frame of the sequence.
+
+        `mask`: (H, W) bool pixels of the object in this frame (your own segmentation); when given, the track
+        (re)starts from it instead of grounding the prompt.
+        """
         t_start = time.perf_counter()
-        estimate = None if self._pose is None else self._track(frame)
+        estimate = None if (self._pose is None or mask is not None) else self._track(frame)
         if estimate is None:
-            estimate = self._initialise(frame)
+            estimate = self._initialise(frame, mask)
         estimate.timings_ms["total"] = 1e3 * (time.perf_counter() - t_start)
         self._T_base_cam = frame.T_base_cam
         self._frame_index += 1
@@ -129,15 +180,16 @@ class Tracker:
 
     # ------------------------------------------------------------------------------------------------------
 
-    def _initialise(self, frame: RGBDFrame) -> Estimate:
-        if self._pose is not None:
+    def _initialise(self, frame: RGBDFrame, mask: np.ndarray | None = None) -> Estimate:
+        if self._pose is not None and mask is None:
             self.reinitialisations += 1
             logger.info("track of %r lost at frame %d; re-grounding", self.prompt, self._frame_index)
         self._views.clear()
-        self._sizes.clear()
-        est = self.estimator.estimate(frame, self.prompt, prior=self.prior)
+        est = self.estimator.estimate(frame, self.prompt, prior=self.prior, mask=mask)
         self.prior = est.prior
         self._plane = est.support_plane
+        self._in_base = frame.T_base_cam is not None
+        self._refit_view = self._view_direction(frame, est.pose)
         self._accept(frame, est.pose, self._observed(frame, est.mask))
         return replace(est, timings_ms=dict(est.timings_ms), frame_index=self._frame_index)
 
@@ -147,28 +199,47 @@ class Tracker:
         T_new_old = np.eye(4)
         if frame.T_base_cam is not None and self._T_base_cam is not None:
             T_new_old = invert_T(frame.T_base_cam) @ self._T_base_cam
-        assert self._pose is not None
+        elif self._in_base:  # the camera pose stopped coming: the base-frame views cannot be carried over
+            self._views.clear()
+            self._in_base = False
+        assert self._pose is not None and self.prior is not None
         pred = self._pose.transformed(T_new_old)
         plane = None if self._plane is None else _plane_in(self._plane, T_new_old)
         mask, points = self._select(frame, pred, plane)
         if len(points) < cfg.min_points:
             return None
-        # Fuse: the views of the window, carried into this frame by the prediction, plus this frame's points.
-        fused = [points]
-        fused.extend(view @ pred.R.T + pred.t for view in self._views)
-        fit = fit_pose(
-            np.concatenate(fused),
-            self.prior,
-            self.estimator.fit_config,
-            init=pred,
-            support_plane_cam=plane_vector(plane),
-        )
-        if not math.isfinite(fit.loss) or math.sqrt(max(fit.loss, 0.0) / 2.0) > cfg.max_rms_m:
+        current = self._thin(points)
+        fit_config = replace(self.estimator.fit_config, warm_iterations=cfg.fit_iterations)
+        support = plane_vector(plane)
+        old_views = np.concatenate([np.zeros((0, 3)), *self._fused_views(frame, pred)])
+        cloud = np.concatenate([current, old_views])
+        fit = fit_pose(cloud, self.prior, fit_config, init=pred, support_plane_cam=support)
+        if self._views and self._rms(current, fit.pose) > cfg.max_rms_m:
+            # the window disagrees with this frame: the object moved in the world; start the window again
+            cloud, old_views = current, np.zeros((0, 3))
+            fit = fit_pose(current, self.prior, fit_config, init=pred, support_plane_cam=support)
+            self._views.clear()
+            self.window_restarts += 1
+        jumped = False
+        view = self._view_direction(frame, fit.pose)
+        if self._refit_view is not None and float(view @ self._refit_view) < math.cos(
+            math.radians(cfg.refit_angle_deg)
+        ):
+            self._refit_view = view
+            cold = fit_pose(points, self.prior, self.estimator.fit_config, support_plane_cam=support)
+            self.refits += 1
+            if self._score(points, old_views, cold, support) < cfg.refit_gain * self._score(
+                points, old_views, fit, support
+            ):
+                fit, jumped = cold, True
+                self.prior = cold.prior or self.prior
+                self.refits_taken += 1
+        if not math.isfinite(fit.loss) or self._rms(current, fit.pose) > cfg.max_rms_m:
             return None
         self._plane = plane
-        size = np.median(np.stack([*self._sizes, fit.pose.size]), axis=0)
-        pose = _blend(pred, fit.pose, cfg.blend, size)
-        self._accept(frame, pose, points)
+        # a jump to another basin is not smoothed (half-way between two yaws is neither)
+        pose = fit.pose if jumped else _blend(pred, fit.pose, cfg.blend)
+        self._accept(frame, pose, current)
         pose_ms = 1e3 * (time.perf_counter() - t0)
         ys, xs = np.nonzero(mask)
         return Estimate(
@@ -183,12 +254,65 @@ class Tracker:
             support_plane=plane,
         )
 
+    def _fused_views(self, frame: RGBDFrame, pred: Pose9D) -> list[np.ndarray]:
+        """The window's views in this camera frame."""
+        if self._in_base:
+            T = invert_T(frame.T_base_cam)
+            return [v @ T[:3, :3].T + T[:3, 3] for v in self._views]
+        return [v @ pred.R.T + pred.t for v in self._views]
+
+    def _view_direction(self, frame: RGBDFrame, pose: Pose9D) -> np.ndarray:
+        """Unit direction from the object to the camera, in the base frame when known (else object frame)."""
+        d = -pose.t / max(float(np.linalg.norm(pose.t)), 1e-9)
+        if frame.T_base_cam is not None:
+            return frame.T_base_cam[:3, :3] @ d
+        return pose.R.T @ d
+
+    def _score(self, points: np.ndarray, old_views: np.ndarray, fit, support: np.ndarray | None) -> float:
+        """How well a fitted pose explains the window: the robust L_geo of this frame's points (both
+        directions, this camera's visibility; no iterations) plus the Huber mean distance of the earlier
+        views' points to the posed prior (one direction: which prior points those cameras saw is not
+        modelled, but every observed point lies on the object's surface)."""
+        cfg = replace(self.estimator.fit_config, n_points_warm=self.config.compare_points, warm_iterations=0)
+        prior = fit.prior or self.prior
+        score = fit_pose(points, prior, cfg, init=fit.pose, support_plane_cam=support).robust_loss
+        if len(old_views):
+            surface = fit.pose.points_to_camera(prior.points[:: max(1, len(prior.points) // 2048)])
+            d, _ = cKDTree(surface).query(old_views, k=1)
+            h = cfg.huber_m
+            huber = np.where(d <= h, d * d, 2.0 * h * d - h * h)
+            score += self.config.old_view_weight * float(np.mean(huber))
+        return score
+
+    def _rms(self, points_cam: np.ndarray, pose: Pose9D) -> float:
+        """Root-mean-square distance of the points to the posed prior's surface samples [m]."""
+        assert self.prior is not None
+        d, _ = cKDTree(pose.points_to_camera(self._prior_sample())).query(points_cam, k=1)
+        return float(np.sqrt(np.mean(d * d)))
+
+    def _prior_sample(self) -> np.ndarray:
+        """At most `prior_points` of the prior's surface samples (unit box), an even stride, cached."""
+        assert self.prior is not None
+        if self._prior_cache is None or self._prior_cache[0] is not self.prior:
+            pts = np.asarray(self.prior.points)
+            step = max(1, len(pts) // self.config.prior_points)
+            self._prior_cache = (self.prior, pts[::step])
+        return self._prior_cache[1]
+
+    def _thin(self, points_cam: np.ndarray) -> np.ndarray:
+        n = self.config.points_per_view
+        if len(points_cam) <= n:
+            return points_cam
+        return points_cam[self._rng.choice(len(points_cam), n, replace=False)]
+
     def _accept(self, frame: RGBDFrame, pose: Pose9D, points_cam: np.ndarray) -> None:
-        """Remember this frame's pose and its points (in the object frame) for the next frames."""
-        if len(points_cam) > self.config.points_per_view:
-            points_cam = points_cam[farthest_point_sampling(points_cam, self.config.points_per_view)]
-        self._views.append(pose.points_to_object(points_cam))
-        self._sizes.append(np.asarray(pose.size))
+        """Remember this frame's pose and its points (in the base or object frame) for the next frames."""
+        points_cam = self._thin(points_cam)
+        if self._in_base:
+            T = frame.T_base_cam
+            self._views.append(points_cam @ T[:3, :3].T + T[:3, 3])
+        else:
+            self._views.append(pose.points_to_object(points_cam))
         self._pose = pose
 
     def _observed(self, frame: RGBDFrame, mask: np.ndarray) -> np.ndarray:
@@ -213,12 +337,24 @@ class Tracker:
             return mask, np.zeros((0, 3))
         # The crop's own camera: the same focal lengths, the principal point shifted by the crop's corner.
         crop = CameraIntrinsics(K.fx, K.fy, K.cx - x0, K.cy - y0, width=x1 - x0 + 1, height=y1 - y0 + 1)
-        sub = depth_to_point_map(frame.depth_m[y0 : y1 + 1, x0 : x1 + 1], crop)
+        k = self.config.pixel_stride
+        if k > 1:  # every k-th pixel: the crop's camera with focal lengths and principal point divided by k
+            w, h = math.ceil(crop.width / k), math.ceil(crop.height / k)
+            crop = CameraIntrinsics(crop.fx / k, crop.fy / k, crop.cx / k, crop.cy / k, width=w, height=h)
+        sub = depth_to_point_map(frame.depth_m[y0 : y1 + 1 : k, x0 : x1 + 1 : k], crop)
         keep = np.all(np.isfinite(sub), axis=2)
         pts = sub[keep]
         inside = grown.contains(pts)
         if plane is not None:
             inside &= plane.height_m(pts) > self.config.plane_clearance_m
+        if self.prior is not None and np.any(inside):
+            idx = np.flatnonzero(inside)
+            surface = cKDTree(pred.points_to_camera(self._prior_sample()))
+            d, _ = surface.query(pts[idx], k=1, distance_upper_bound=self.config.surface_margin_m)
+            inside[idx[~np.isfinite(d)]] = False
         rows, cols = np.nonzero(keep)
-        mask[rows[inside] + y0, cols[inside] + x0] = True
+        for dy in range(k):  # each sampled pixel stands for its k x k block
+            for dx in range(k):
+                r = np.minimum(k * rows[inside] + y0 + dy, y1)
+                mask[r, np.minimum(k * cols[inside] + x0 + dx, x1)] = True
         return mask, pts[inside]

@@ -13,7 +13,7 @@ from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.geometry.se3 import rotation_angle, so3_exp
 from prompose_grasp.perception.fit import FitConfig, FitStage, canonicalize_symmetry, fit_pose
-from prompose_grasp.perception.fit.core import _normal_equations
+from prompose_grasp.perception.fit.core import _containment, _normal_equations, _Problem, _State
 from prompose_grasp.perception.priors import PriorLibrary
 from prompose_grasp.perception.priors.library import articulated_variants
 
@@ -312,3 +312,35 @@ def test_normal_equations_match_an_explicit_jacobian() -> None:
         # float64 sums of 40 terms of size <= 1: agreement to rounding
         np.testing.assert_allclose(H, H_ref, atol=1e-12)
         np.testing.assert_allclose(g, g_ref, atol=1e-12)
+
+
+def test_containment_jacobian_matches_finite_differences() -> None:
+    # The containment term's residuals are piecewise linear in the box parameters; away from the kinks its
+    # analytic Jacobian must match central differences of the residuals (with a plane: bottom held). The
+    # ray-dependent noise margin is held constant within a step (a Gauss-Newton approximation), so it is
+    # off here.
+    rng = np.random.default_rng(7)
+    R = so3_exp(rng.normal(size=3))
+    up = R[:, 1]
+    obs = rng.normal(size=(200, 3)) * 0.06 + np.array([0.0, 0.0, 0.8])
+    cfg = FitConfig(contain_ray_margin_m=0.0)
+    for plane in (None, (up, -float(up @ np.array([0.0, 0.05, 0.8])))):
+        pb = _Problem(obs, None, np.zeros((1, 3)), np.zeros((1, 3)), up if plane else None, plane, np.eye(9),
+                      np.zeros(3), cfg)  # fmt: skip
+        st = _State(R, np.array([0.01, -0.02, 0.79]), np.log(np.array([0.08, 0.1, 0.06])))
+
+        def residuals(x: np.ndarray, st=st, pb=pb) -> np.ndarray:
+            s2 = _State(so3_exp(x[0:3]) @ st.R, st.b + x[3:6], st.log_s + x[6:9])
+            s = np.exp(s2.log_s)
+            _, _, _, e = _containment(pb, s2, s, pb.centre(s2), True)
+            return e
+
+        s0 = np.exp(st.log_s)
+        _, J, _, e0 = _containment(pb, st, s0, pb.centre(st), True)
+        assert J is not None and len(e0) > 20  # many points outside the small box
+        h = 1e-7
+        J_num = np.column_stack(
+            [(residuals(h * np.eye(9)[i]) - residuals(-h * np.eye(9)[i])) / (2 * h) for i in range(9)]
+        )
+        # central differences of exact linear pieces: rounding only (residuals ~1e-2 m, h 1e-7)
+        np.testing.assert_allclose(J, J_num, atol=1e-6)
