@@ -66,3 +66,47 @@ def render_scene(width: int = 640, height: int = 480, seed: int = 0) -> SceneFra
         up_cam = world.T_world_cam("front")[:3, :3].T @ np.array([0.0, 0.0, 1.0])
         poses = {g.name: g.as_pose9d() for g in world.ground_truth("front")}
     return SceneFrame(frame.rgb, frame.depth_m, frame.intrinsics, gt, ids, up_cam, poses)
+
+
+#: A wall standing across the back of the table (taller than the camera), a grey box of the wall's colour
+#: leaning on it, and a red mug in front: (name, family, params, rgb, (x, y) [m], yaw [rad]).
+WALL_OBJECTS = (
+    ("wall", "box", {"width_m": 1.1, "height_m": 0.75, "depth_m": 0.04}, (0.6, 0.6, 0.6), (0.0, 0.30), 0.0),
+    ("box", "box", {"width_m": 0.16, "height_m": 0.2, "depth_m": 0.06}, (0.62, 0.6, 0.58), (0.05, 0.249),
+     0.0),
+    ("mug", "mug", {"radius_m": 0.042, "height_m": 0.095}, (0.8, 0.1, 0.1), (-0.2, 0.0), 0.4),
+)  # fmt: skip
+
+
+def render_wall_scene(width: int = 640, height: int = 480, seed: int = 0) -> SceneFrame:
+    """The table of `render_scene` with `WALL_OBJECTS` on it, seen by the same camera."""
+    from sim import NOISE_PRESETS, Appearance, CameraSpec, SceneBuilder, look_at, make_object, upright_pose
+
+    b = SceneBuilder("grounding_wall_test")
+    b.add_floor()
+    b.add_skybox()
+    b.add_light([0.5, -0.5, 2.5])
+    table = b.add_table(size_xy_m=(1.2, 0.8), height_m=0.75)
+    ids = {}
+    for name, family, params, rgb, xy, yaw in WALL_OBJECTS:
+        asset = make_object(family, params)
+        info = b.add_object(
+            asset, name, upright_pose(asset, table, xy, yaw), appearance=Appearance(rgba=(*rgb, 1))
+        )
+        ids[name] = info.instance_id
+    cam = CameraSpec(
+        "front",
+        width,
+        height,
+        58.0,
+        look_at([0.0, -0.75, 1.25], [0.0, 0.0, 0.75]),
+        noise=NOISE_PRESETS["realsense"],
+    )
+    b.add_camera(cam)
+    with b.build() as world:
+        world.settle()
+        frame = world.render("front", rng=np.random.default_rng(seed))
+        gt = world.ground_truth_mask("front")
+        up_cam = world.T_world_cam("front")[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+        poses = {g.name: g.as_pose9d() for g in world.ground_truth("front")}
+    return SceneFrame(frame.rgb, frame.depth_m, frame.intrinsics, gt, ids, up_cam, poses)

@@ -369,12 +369,14 @@ def test_concave_creases_flag_valleys_and_the_foot_of_steps_not_ridges_nor_noise
     cfg = GroundingConfig()
     s = 2  # the grounder's clustering grid
     centre = round(K.cx / s)
-    # a 90 deg valley at 0.6 m: over k = 5 cells (10 px, u' = 0.025) the fold lies z0 u' / (1 + u') = 15 mm
-    # behind the mean of its neighbours, just over 6 sigma(0.6 m) = 14 mm: only the fold's own column
+    # a 90 deg valley at 0.6 m: over k = 8 cells (16 px, u' = 0.04) the fold lies z0 u' / (1 + u') = 23 mm
+    # behind the mean of its neighbours, over 6 sigma(0.6 m) = 14 mm; a cell j cells off the fold has
+    # one neighbour on its own face, so its excess falls as (k - j) / k: flagged within ~3 cells
     valley = concave_creases(fold_depth(1.0)[::s, ::s], cfg)
-    assert set(np.nonzero(valley.any(axis=0))[0]) == {centre}
-    assert valley[:, centre].mean() > 0.9  # the whole column but the k rows at the image's top and bottom
-    # a wider valley (127 deg) stays under 6 sigma: the test is meant for sharp folds and steps
+    cols = np.nonzero(valley.any(axis=0))[0]
+    assert centre in cols and np.all(np.abs(cols - centre) <= 3)
+    assert valley[:, centre].mean() > 0.85  # the whole column but the k rows at the image's top and bottom
+    # a wider valley (127 deg: 12 mm) stays under 6 sigma: the test is meant for sharp folds and steps
     assert not concave_creases(fold_depth(0.5)[::s, ::s], cfg).any()
     assert not concave_creases(fold_depth(-1.0)[::s, ::s], cfg).any()  # a ridge is convex
     # a block 5 cm above a table: the table cells next to the block's silhouette are at the foot of a step

@@ -78,7 +78,7 @@ class GroundingConfig:
     colour_edge: float = 28.0
     wide_colour_edge: float = 40.0
     crease_sigmas: float = 6.0
-    crease_cells: int = 5
+    crease_cells: int = 8
     min_segment_px: int = 150
     max_candidates: int = 32
     device: str = "cpu"
