@@ -84,6 +84,7 @@ class TrackerConfig:
         prior_points: prior surface samples (an even stride) used to select points near the posed prior and
             to measure the residual.
         fit_iterations: Gauss-Newton iterations of a tracked frame's warm fit (the prediction is close).
+        fit_points, fit_prior_points: observed (of the fused cloud) and prior points of that warm fit.
     """
 
     window: int = 16
@@ -101,10 +102,14 @@ class TrackerConfig:
     pixel_stride: int = 2
     prior_points: int = 1024
     fit_iterations: int = 8
+    fit_points: int = 384
+    fit_prior_points: int = 512
 
     def __post_init__(self) -> None:
         if self.window < 1 or self.points_per_view < 8 or self.min_points < 4:
             raise InvalidInputError("TrackerConfig needs window >= 1, points_per_view >= 8, min_points >= 4")
+        if self.fit_points < 8 or self.fit_prior_points < 8:
+            raise InvalidInputError("TrackerConfig needs fit_points >= 8 and fit_prior_points >= 8")
         if self.pixel_stride < 1 or self.prior_points < 8 or self.fit_iterations < 0:
             raise InvalidInputError(
                 "TrackerConfig needs pixel_stride >= 1, prior_points >= 8 and fit_iterations >= 0"
@@ -209,7 +214,12 @@ class Tracker:
         if len(points) < cfg.min_points:
             return None
         current = self._thin(points)
-        fit_config = replace(self.estimator.fit_config, warm_iterations=cfg.fit_iterations)
+        fit_config = replace(
+            self.estimator.fit_config,
+            warm_iterations=cfg.fit_iterations,
+            n_points_warm=cfg.fit_points,
+            warm_prior_points=cfg.fit_prior_points,
+        )
         support = plane_vector(plane)
         old_views = np.concatenate([np.zeros((0, 3)), *self._fused_views(frame, pred)])
         cloud = np.concatenate([current, old_views])
