@@ -27,7 +27,7 @@ import platform
 import sys
 import time
 from collections import defaultdict
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -56,8 +56,12 @@ def run(
     split: str = "test",
     max_frames: int | None = None,
     with_fit: bool = True,
+    refine: Sequence[str] | None = None,
 ) -> dict[str, Any]:
-    """The report dict (tables per method and IoU mode, timings, what was run)."""
+    """The report dict (tables per method and IoU mode, timings, what was run).
+
+    `refine` names the checkpoints that also get a `net+fit` row (default: all of them).
+    """
     from prompose_grasp.eval import compute_nocs_map
     from prompose_grasp.perception.priors import PriorLibrary
     from prompose_grasp.perception.text import default_text_encoder
@@ -71,7 +75,10 @@ def run(
     library = PriorLibrary(encoder=encoder)
     heads = {name: NetworkPoseHead.load(path, encoder) for name, path in checkpoints.items()}
     methods = [*(["fit"] if with_fit else []), *(f"net:{n}" for n in heads)]
-    methods += [f"net+fit:{n}" for n in heads] if with_fit else []
+    refined = set(heads) if refine is None else set(refine)
+    if refined - set(heads):
+        raise InvalidInputError(f"--refine names unknown checkpoints {sorted(refined - set(heads))}")
+    methods += [f"net+fit:{n}" for n in heads if n in refined] if with_fit else []
     per_image: dict[str, list[dict[str, Any]]] = {m: [] for m in methods}
     times: dict[str, list[float]] = defaultdict(list)
     sym_by_cat: dict[str, str] = {}
@@ -117,10 +124,10 @@ def run(
                     if pose is None:  # cannot happen with >= _MIN_POINTS points; kept as a miss
                         continue
                     preds[f"net:{name}"].append((cls, pose))
-                    if with_fit:
-                        refined = fit_pose(pts, prior, support_plane_cam=plane, init=pose)
+                    if with_fit and name in refined:
+                        refined_fit = fit_pose(pts, prior, support_plane_cam=plane, init=pose)
                         times[f"net+fit:{name}"].append(time.perf_counter() - t0)
-                        preds[f"net+fit:{name}"].append((cls, refined.pose))
+                        preds[f"net+fit:{name}"].append((cls, refined_fit.pose))
             for m in methods:
                 per_image[m].append(nocs_image_result(gts, [(c, p, 1.0) for c, p in preds[m]]))
             frames_done += 1
@@ -198,12 +205,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--split", default="test")
     parser.add_argument("--max-frames", type=int, default=None)
     parser.add_argument("--no-fit", action="store_true", help="only the network rows (faster)")
+    parser.add_argument(
+        "--refine", action="append", default=None, metavar="NAME", help="net+fit rows only for these"
+    )
     parser.add_argument("--json", type=Path, default=None, help="write the report here")
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING)
     checkpoints = dict(_checkpoint_arg(w) for w in args.weights)
-    report = run(args.data, checkpoints, args.split, args.max_frames, with_fit=not args.no_fit)
+    report = run(args.data, checkpoints, args.split, args.max_frames, not args.no_fit, args.refine)
     sys.stdout.write(format_report(report) + "\n")
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
