@@ -8,8 +8,9 @@ The structure follows the paper's Algorithm 1 (shared/paper/ProM-Pose.txt, secti
    size by minimising the paper's L_geo against the prior              `perception.fit`
 4. refine over a sliding window of frames                               `perception.tracker`
 
-Every component here is the embedded default that works offline on a CPU; the learned ProM-Pose network slots
-in as another pose head (issue 8).
+Every component here is the embedded default that works offline on a CPU. The learned ProM-Pose network
+(`perception.network`) slots in as another pose head: `ProMPose.default(network_weights=...)` starts each
+single-frame fit from the network's pose (docs/network.md; the benchmark there says which head is better).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import trimesh
@@ -32,6 +33,9 @@ from prompose_grasp.perception.fit import FitConfig, fit_pose
 from prompose_grasp.perception.grounding import Candidate, Grounder, GroundingResult, SupportPlane
 from prompose_grasp.perception.priors import PriorLibrary, ShapePrior
 from prompose_grasp.robot.interfaces import RGBDFrame
+
+if TYPE_CHECKING:
+    from prompose_grasp.perception.network.pose_head import NetworkPoseHead
 
 __all__ = ["Estimate", "EstimatorConfig", "ProMPose"]
 
@@ -132,8 +136,10 @@ class ProMPose:
     >>> est = estimator.estimate(frame, "the yellow carton")  # doctest: +SKIP
     >>> est.pose.size, est.mesh_cam  # doctest: +SKIP
 
-    The pose head is the test-time L_geo fit of the canonical prior (`perception.fit`); the learned network
-    of issue 8 will be offered as another head once it beats the fit on the benchmark.
+    The default pose head is the test-time L_geo fit of the canonical prior (`perception.fit`), multi-
+    hypothesis from the observation's axes: on the unseen-category benchmark (docs/benchmarks.md, "network")
+    it beats the shipped network and the network followed by the fit, so `default()` uses it. With `network`
+    (a `NetworkPoseHead`), each single-frame fit starts from the network's pose instead (one hypothesis).
     """
 
     def __init__(
@@ -142,17 +148,22 @@ class ProMPose:
         priors: PriorLibrary,
         fit_config: FitConfig | None = None,
         config: EstimatorConfig | None = None,
+        network: NetworkPoseHead | None = None,
     ):
         self.grounder = grounder
         self.priors = priors
         self.fit_config = fit_config or FitConfig()
         self.config = config or EstimatorConfig()
+        self.network = network
 
     @classmethod
-    def default(cls, device: str = "cpu") -> ProMPose:
+    def default(cls, device: str = "cpu", network_weights: str | None = None) -> ProMPose:
         """The embedded offline defaults: geometric grounding scored with MiniLM, the parametric prior
-        library (shared by grounding and the prior), and the visibility-aware L_geo fit. Loads nothing from
-        the network; loading MiniLM and embedding the vocabularies takes a few seconds, once."""
+        library (shared by grounding and the prior), and the visibility-aware L_geo fit. Loading MiniLM and
+        embedding the vocabularies takes a few seconds, once.
+
+        `network_weights`: a network checkpoint (e.g. `network.SHIPPED_WEIGHTS`) whose pose starts each fit.
+        """
         from prompose_grasp.perception.text import default_text_encoder
 
         encoder = default_text_encoder(device)
@@ -160,7 +171,12 @@ class ProMPose:
         grounder = Grounder(text_encoder=encoder, priors=priors)
         # Embed the closed description vocabularies now, so the first frame pays only for its own prompt.
         grounder.warm_up()
-        return cls(grounder, priors)
+        network = None
+        if network_weights is not None:
+            from prompose_grasp.perception.network.pose_head import NetworkPoseHead
+
+            network = NetworkPoseHead.load(network_weights, encoder, device)
+        return cls(grounder, priors, network=network)
 
     # ------------------------------------------------------------------------------------------------------
 
@@ -209,7 +225,14 @@ class ProMPose:
             prior = prior or self._generate_prior(prompt, points, grounding)
             prior_ms = _ms(t0)
             estimates.append(
-                self._fit(candidate, points, prior, grounding, {"grounding": grounding_ms, "prior": prior_ms})
+                self._fit(
+                    candidate,
+                    points,
+                    prior,
+                    grounding,
+                    {"grounding": grounding_ms, "prior": prior_ms},
+                    network_input=(frame, prompt),
+                )
             )
         for est in estimates:
             est.timings_ms["total"] = _ms(t_total)
@@ -259,7 +282,8 @@ class ProMPose:
         grounding_ms = _ms(t0)
         t0 = time.perf_counter()
         prior = prior or self._generate_prior(prompt, points, grounding)
-        est = self._fit(candidate, points, prior, grounding, {"grounding": grounding_ms, "prior": _ms(t0)})
+        timings = {"grounding": grounding_ms, "prior": _ms(t0)}
+        est = self._fit(candidate, points, prior, grounding, timings, network_input=(frame, prompt))
         est.timings_ms["total"] = _ms(t_total)
         return est
 
@@ -276,8 +300,12 @@ class ProMPose:
         timings_ms: dict[str, float],
         init: Pose9D | None = None,
         frame_index: int = 0,
+        network_input: tuple[RGBDFrame, str] | None = None,
     ) -> Estimate:
         t0 = time.perf_counter()
+        if init is None and self.network is not None and network_input is not None:
+            init = self._network_pose(candidate, prior, *network_input)
+            timings_ms["network"] = _ms(t0)
         fit = fit_pose(
             points, prior, self.fit_config, init=init, support_plane_cam=plane_vector(grounding.support_plane)
         )
@@ -293,3 +321,17 @@ class ProMPose:
             frame_index=frame_index,
             support_plane=grounding.support_plane,
         )
+
+    def _network_pose(
+        self, candidate: Candidate, prior: ShapePrior, frame: RGBDFrame, prompt: str
+    ) -> Pose9D | None:
+        """The network's pose of the candidate, or None when its mask holds too few points for the network
+        (the fit then starts from the observation, as without a network)."""
+        from prompose_grasp.perception.network.pose_head import MaskedFrame
+
+        assert self.network is not None
+        masked = MaskedFrame(frame.rgb, frame.depth_m, frame.intrinsics, candidate.mask)
+        prepared = self.network.prepare(masked)
+        if prepared is None:
+            return None
+        return self.network.predict([prepared], prompt, prior.points)[-1]

@@ -108,3 +108,40 @@ def test_bad_input_is_refused(head):
         head.predict([None, None], "a box", prior)
     with pytest.raises(InvalidInputError):
         NetworkPoseHead(head.model, type("Narrow", (), {"dim": 7})())
+
+
+@pytest.mark.sim
+def test_shipped_network_is_trained_and_serves_as_the_estimators_head():
+    from grounding_scene import render_scene
+
+    from prompose_grasp import ProMPose
+    from prompose_grasp.perception.network import SHIPPED_WEIGHTS
+    from prompose_grasp.perception.network.checkpoint import load_checkpoint
+    from prompose_grasp.robot import RGBDFrame
+
+    ckpt = load_checkpoint(SHIPPED_WEIGHTS)
+    assert "optimizer" not in ckpt and "trained_on" in ckpt and "command" in ckpt  # shipped, with provenance
+    scene = render_scene()
+    frame = RGBDFrame(scene.rgb, scene.depth_m, scene.intrinsics, timestamp_s=0.0)
+    estimator = ProMPose.default(network_weights=str(SHIPPED_WEIGHTS))
+    trained = estimator.network
+    assert trained is not None
+    assert trained.model.config == network_config("tiny", text_dim=trained.model.config.text_dim)
+    torch.manual_seed(0)
+    untrained = NetworkPoseHead(ProMPoseNet(trained.model.config), trained.text_encoder)
+    for name, prompt in (("box", "the blue box"), ("can", "the yellow can"), ("bowl", "the green bowl")):
+        mask = scene.gt_mask == scene.ids[name]
+        gt = scene.gt_poses[name]
+        prior = estimator.priors.generate(prompt)
+        masked = MaskedFrame(frame.rgb, frame.depth_m, frame.intrinsics, mask)
+        (p_trained,) = trained.predict([trained.prepare(masked)], prompt, prior.points)
+        (p_untrained,) = untrained.predict([untrained.prepare(masked)], prompt, prior.points)
+        assert p_trained is not None and p_untrained is not None
+        # Training shows: the box overlaps better than the same network untrained (measured 0.38-0.57 vs
+        # 0.30-0.36), and the up axis is learned (14-16 deg off the table normal vs 33 deg untrained).
+        assert p_trained.iou(gt) > p_untrained.iou(gt), name
+        assert np.degrees(np.arccos(abs(p_trained.R[:, 1] @ scene.up_cam))) < 25.0, name
+        est = estimator.estimate(frame, prompt, mask=mask)
+        assert "network" in est.timings_ms
+        # the network's pose refined by the fit (one hypothesis from it): measured IoU 0.48-0.89
+        assert est.pose.iou(gt) > 0.4, name

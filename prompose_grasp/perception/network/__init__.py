@@ -15,7 +15,7 @@ The text encoder phi_T is the frozen `prompose_grasp.perception.text` encoder; t
 features. Training: `prompose_grasp.perception.train`. See docs/network.md.
 """
 
-from prompose_grasp.perception.network.checkpoint import load_estimator, save_checkpoint
+from prompose_grasp.perception.network.checkpoint import SHIPPED_WEIGHTS, load_estimator, save_checkpoint
 from prompose_grasp.perception.network.config import ABLATIONS, CONFIGS, NetworkConfig, network_config
 from prompose_grasp.perception.network.data import (
     AugmentConfig,
@@ -31,6 +31,7 @@ from prompose_grasp.perception.network.model import ProMPoseNet
 __all__ = [
     "ABLATIONS",
     "CONFIGS",
+    "SHIPPED_WEIGHTS",
     "AugmentConfig",
     "LossConfig",
     "NetworkBatch",

@@ -24,6 +24,7 @@ from prompose_grasp.perception.network.model import ProMPoseNet
 
 __all__ = [
     "CHECKPOINT_FORMAT",
+    "SHIPPED_WEIGHTS",
     "export_weights",
     "load_checkpoint",
     "load_estimator",
@@ -32,6 +33,10 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+#: The checkpoint shipped with the package: the `tiny` config trained on CPU on a generated synthetic set
+#: (how and on what: its `trained_on` and `command` entries; numbers: docs/benchmarks.md, "network").
+SHIPPED_WEIGHTS = Path(__file__).parent / "weights" / "prompose_tiny.pt"
 
 CHECKPOINT_FORMAT = "prompose-grasp/network"
 CHECKPOINT_VERSION = 1
