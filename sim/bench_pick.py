@@ -11,6 +11,7 @@ Scenarios (`SCENARIOS`):
 - `tabletop_household`: the tabletop scene; each seed picks one of its objects at random and says
   "pick up the <prompt>" (with `--place`: "put the <prompt> in the bin");
 - `logistics_pallet`: the depalletising cell; "put the brown carton on the conveyor";
+- `logistics_palletise`: the palletising cell; "put the brown carton on the pallet" (the next pattern slot);
 - `real_meshes` (or `--real-meshes` with the tabletop): the tabletop with 5 of the real household meshes of
   `../shared/data/objects` (geometry nothing here was tuned on) drawn per seed; fails clearly when absent.
 
@@ -48,7 +49,7 @@ SCENES_DIR = Path(__file__).resolve().parent / "scenes"
 #: Where the real meshes live: ../shared/data/objects next to the repository (development data, never
 #: committed).
 REAL_MESHES_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "objects"
-SCENARIOS = ("tabletop_household", "logistics_pallet", "real_meshes")
+SCENARIOS = ("tabletop_household", "logistics_pallet", "logistics_palletise", "real_meshes")
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
@@ -174,6 +175,8 @@ def _episode_plan(scenario: str, seed: int, place: bool, real_meshes: bool) -> t
         return path, (f"put the {prompt} in the bin" if place else f"pick up the {prompt}"), prompt
     if scenario == "logistics_pallet":
         return path, "put the brown carton on the conveyor", None
+    if scenario == "logistics_palletise":
+        return path, "put the brown carton on the pallet", None
     raise InvalidInputError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
 
 
