@@ -64,6 +64,7 @@ from prompose_grasp.geometry.se3 import invert_T, transform_points
 from prompose_grasp.grasp import (
     GraspConfig,
     ObjectModel,
+    PlaceConfig,
     PlaceTarget,
     Plane,
     check_path,
@@ -917,8 +918,11 @@ class PickAndPlace:
             options = [q_goal[j] + 2.0 * math.pi * k for k in (-1, 0, 1)]
             options = [v for v in options if lower[j] <= v <= upper[j]]
             q_goal[j] = min(options, key=lambda v: abs(v - q_now[j]))
+        # A joint more than 3 rad away (the validator takes at most half a turn per move) goes in two moves.
+        steps = [0.5 * (q_now + q_goal), q_goal] if np.max(np.abs(q_goal - q_now)) > 3.0 else [q_goal]
         try:
-            self.arm.move_joints(q_goal, cfg.joint_speed_rad_s, cfg.joint_accel_rad_s2)
+            for q in steps:
+                self.arm.move_joints(q, cfg.joint_speed_rad_s, cfg.joint_accel_rad_s2)
         except (UnreachableError, UnsafeCommandError) as exc:
             logger.warning("could not return to the start configuration: %s", exc)
 
@@ -978,6 +982,7 @@ class PickAndPlace:
                 self.gripper_geometry,
                 obstacles=tuple(state["placed"]),
                 q_seed=grasp.q,
+                config=_PLACE_CONFIG,
                 scene=held_scene,
             )
             motion = plan_pick_place(
@@ -1037,6 +1042,9 @@ class PickAndPlace:
 
 #: Prior families that hold things inside them (a place "on" one of them puts the object in).
 _CONTAINERS = ("bowl", "cup", "mug", "bin", "basket", "bucket", "pot", "tray")
+#: Place candidates examined (the planner's default 200 are all within ~0.3 m of the preferred point: a belt
+#: with one carton already at its centre had no free spot among them).
+_PLACE_CONFIG = PlaceConfig(max_candidates=2000)
 #: The most a grasp is moved deeper along its approach by `_deepened` [m].
 _MAX_DEEPEN_M = 0.03
 #: Observed points this close to a place surface are the surface itself [m] (sensor noise at 1-2 m).
