@@ -916,7 +916,7 @@ class PickAndPlace:
         lower, upper = self.robot.joint_limits
         for j in range(len(q_goal)):
             options = [q_goal[j] + 2.0 * math.pi * k for k in (-1, 0, 1)]
-            options = [v for v in options if lower[j] <= v <= upper[j]]
+            options = [v for v in options if lower[j] + 1e-3 <= v <= upper[j] - 1e-3] or [q_goal[j]]
             q_goal[j] = min(options, key=lambda v: abs(v - q_now[j]))
         # A joint more than 3 rad away (the validator takes at most half a turn per move) goes in two moves.
         steps = [0.5 * (q_now + q_goal), q_goal] if np.max(np.abs(q_goal - q_now)) > 3.0 else [q_goal]
