@@ -36,9 +36,9 @@ import numpy as np
 
 from prompose_grasp.errors import PromposeError
 from prompose_grasp.eval.baselines import obb_baseline
-from prompose_grasp.eval.nocs import IOU_MODES, compute_nocs_map
+from prompose_grasp.eval.nocs import IOU_MODES
 from prompose_grasp.eval.report import format_nocs_table
-from prompose_grasp.eval.synthetic import nocs_image_result
+from prompose_grasp.eval.synthetic import nocs_image_result, nocs_tables
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.pointcloud import back_project
 from prompose_grasp.perception.dataset import SyntheticFrame, read_split, scene_frames
@@ -111,19 +111,7 @@ def run_estimator_benchmark(
         if max_frames is not None and frames_done >= max_frames:
             break
     ysym = tuple(c for c, s in symmetry.items() if s == "y_continuous")
-    tables = {
-        m: {
-            mode: compute_nocs_map(
-                per_image[m],
-                synset_names=synsets,
-                iou_mode=mode,
-                y_symmetric_classes=ysym,
-                classes_without_gt="skip",
-            )
-            for mode in IOU_MODES
-        }
-        for m in METHODS
-    }
+    tables = nocs_tables(per_image, synsets, ysym)
     track_s = times["track_update"]
     return {
         "data": str(data),

@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from prompose_grasp.eval.baselines import obb_baseline
-from prompose_grasp.eval.synthetic import nocs_image_result
+from prompose_grasp.eval.synthetic import nocs_image_result, nocs_tables
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import back_project
 from prompose_grasp.geometry.pose9d import Pose9D
@@ -97,7 +97,7 @@ def _handle_visible(obj: dict[str, Any], points_cam: np.ndarray) -> int:
 def run(
     data: Path, split: str = "test", max_frames: int | None = None, config: FitConfig | None = None
 ) -> dict[str, Any]:
-    from prompose_grasp.eval import compute_nocs_map, nocs_box_iou, nocs_pose_error
+    from prompose_grasp.eval import nocs_box_iou, nocs_pose_error
     from prompose_grasp.perception.priors import PriorLibrary
 
     cfg = config or FitConfig()
@@ -194,19 +194,7 @@ def run(
             log.info("%s frame %d: %d objects (%.1f s)", scene, sf.index, len(gts),
                      time.perf_counter() - t_start)  # fmt: skip
     ysym = tuple(c for c, s in sym_by_cat.items() if s == "y_continuous")
-    tables: dict[str, Any] = {}
-    for m in methods:
-        tables[m] = {
-            mode: compute_nocs_map(
-                per_image[m],
-                synset_names=synsets,
-                iou_mode=mode,
-                y_symmetric_classes=ysym,
-                handle_classes=("mug",),
-                classes_without_gt="skip",
-            )
-            for mode in ("exact", "aligned", "nocs")
-        }
+    tables = nocs_tables(per_image, synsets, ysym)
     n_gt = sum(len(r["gt_class_ids"]) for r in per_image["ours"])
     n_pred = sum(len(r["pred_class_ids"]) for r in per_image["ours"])
     timing = {

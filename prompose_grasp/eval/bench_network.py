@@ -35,7 +35,7 @@ import numpy as np
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.eval.bench_fit import support_plane
-from prompose_grasp.eval.synthetic import nocs_image_result
+from prompose_grasp.eval.synthetic import nocs_image_result, nocs_tables
 from prompose_grasp.geometry.pointcloud import back_project
 from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.perception.dataset import read_split, scene_frames
@@ -62,7 +62,6 @@ def run(
 
     `refine` names the checkpoints that also get a `net+fit` row (default: all of them).
     """
-    from prompose_grasp.eval import compute_nocs_map
     from prompose_grasp.perception.priors import PriorLibrary
     from prompose_grasp.perception.text import default_text_encoder
 
@@ -134,20 +133,7 @@ def run(
             elapsed = time.perf_counter() - t_start
             log.info("%s frame %d: %d objects (%.0f s)", scene, sf.index, len(gts), elapsed)
     ysym = tuple(c for c, s in sym_by_cat.items() if s == "y_continuous")
-    tables = {
-        m: {
-            mode: compute_nocs_map(
-                per_image[m],
-                synset_names=synsets,
-                iou_mode=mode,
-                y_symmetric_classes=ysym,
-                handle_classes=("mug",),
-                classes_without_gt="skip",
-            )
-            for mode in _MODES
-        }
-        for m in methods
-    }
+    tables = nocs_tables(per_image, synsets, ysym)
     timing = {
         k: {"n": len(v), "median_ms": 1e3 * float(np.median(v)), "mean_ms": 1e3 * float(np.mean(v))}
         for k, v in times.items()

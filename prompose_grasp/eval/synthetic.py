@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
+from prompose_grasp.eval.nocs import IOU_MODES, compute_nocs_map
 from prompose_grasp.geometry import Pose9D
 
-__all__ = ["nocs_image_result"]
+__all__ = ["nocs_image_result", "nocs_tables"]
 
 
 def nocs_image_result(
@@ -31,4 +33,27 @@ def nocs_image_result(
         "pred_scores": np.array([s for _, _, s in predictions], dtype=np.float64),
         "pred_RTs": np.array([a for a, _ in q], dtype=np.float64).reshape(-1, 4, 4),
         "pred_scales": np.array([b for _, b in q], dtype=np.float64).reshape(-1, 3),
+    }
+
+
+def nocs_tables(
+    per_image: Mapping[str, Sequence[Mapping[str, Any]]],
+    synset_names: Sequence[str],
+    y_symmetric_classes: Collection[str],
+) -> dict[str, dict[str, Any]]:
+    """{method: {iou mode: `compute_nocs_map` table}} for the synthetic benchmarks: every IoU mode, mugs
+    without a visible handle counted as y-symmetric (NOCS protocol), classes without ground truth skipped."""
+    return {
+        method: {
+            mode: compute_nocs_map(
+                results,
+                synset_names=synset_names,
+                iou_mode=mode,
+                y_symmetric_classes=y_symmetric_classes,
+                handle_classes=("mug",),
+                classes_without_gt="skip",
+            )
+            for mode in IOU_MODES
+        }
+        for method, results in per_image.items()
     }
