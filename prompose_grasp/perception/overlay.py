@@ -74,6 +74,7 @@ def draw_poses(
         if m.shape != out.shape[:2]:
             raise InvalidInputError(f"mask {i} must be {out.shape[:2]}, got {m.shape}")
         out[m] = (0.6 * out[m] + 0.4 * np.asarray(colors[i], dtype=np.float64)).astype(np.uint8)
+    placed: list[tuple[int, int, int, int]] = []  # labels drawn so far: x, baseline y, width, height [px]
     for i, pose in enumerate(poses):
         corners = pose.corners()
         if np.any(corners[:, 2] <= 1e-3):  # behind or on the camera plane: the projection is meaningless
@@ -84,8 +85,11 @@ def draw_poses(
             cv2.line(out, tuple(uv[a]), tuple(uv[b]), color, thickness, cv2.LINE_AA)
         if labels:
             top = uv[np.argmin(uv[:, 1])]
-            cv2.putText(
-                out, labels[i], (int(top[0]), int(top[1]) - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.5, color, 1,
-                cv2.LINE_AA,
-            )  # fmt: skip
+            (w, h), _ = cv2.getTextSize(labels[i], cv2.FONT_HERSHEY_SIMPLEX, 0.5, 1)
+            x, y = int(top[0]), int(top[1]) - 4
+            # boxes of the same object (estimate and ground truth) share a top corner: stack their labels
+            while any(x < px + pw and px < x + w and y - h < py and py - ph < y for px, py, pw, ph in placed):
+                y -= h + 4
+            placed.append((x, y, w, h))
+            cv2.putText(out, labels[i], (x, y), cv2.FONT_HERSHEY_SIMPLEX, 0.5, color, 1, cv2.LINE_AA)
     return out
