@@ -107,8 +107,9 @@ class PickConfig:
             (or is no longer seen where it stood) [m]; half the default 10 cm lift.
         max_scene_points: observed points handed to the collision scene (evenly thinned) [-].
         reobserve: re-observe after the lift to confirm the pick.
-        open_margin_m: the jaws open to the grasp's planned opening plus this before the approach (not the
-            full stroke: a narrower hand fits between neighbours) [m].
+        open_margin_m: the jaws open this much wider than the object plus the planner's clearance before the
+            approach (not the full stroke: a narrower hand fits between neighbours) [m]. It is planned in:
+            the grasp's opening, and so the approach's collision check, include it.
         candidates: estimator candidates considered per observation (estimators with `estimate_all`).
         candidate_ratio: candidates scoring at least this fraction of the best one count as the object [-].
         max_objects: objects moved by one plural command at most.
@@ -565,11 +566,13 @@ class PickAndPlace:
         return ObjectModel(obs.target.name, Pose9D(pose.R, t, size), family=obs.target.family)
 
     def _grasp_config(self, obs: _Observation) -> GraspConfig:
-        """The planner's settings for this target: the lift clears the object's own height."""
+        """The planner's settings for this target: the lift clears the object's own height, and the opening
+        includes `open_margin_m` (half on each side), so the approach is checked at the commanded width."""
         cfg = self.config.grasp or GraspConfig()
         height = _height(self._carried(obs), obs.support)
         lift = min(max(cfg.lift_m, height + self.config.lift_clearance_m), self.config.max_lift_m)
-        return dataclasses.replace(cfg, lift_m=lift) if lift != cfg.lift_m else cfg
+        clearance = cfg.clearance_m + 0.5 * self.config.open_margin_m
+        return dataclasses.replace(cfg, lift_m=lift, clearance_m=clearance)
 
     def _plan(
         self, obs: _Observation, q_now: np.ndarray, timings: dict[str, float]
@@ -793,7 +796,7 @@ class PickAndPlace:
         pre = self.robot.ik(grasp.T_base_pregrasp, q_seed=grasp.q, frame="tcp")
         if not (ik.success and pre.success) or float(np.max(np.abs(ik.q - grasp.q))) > 0.2:
             return grasp
-        opening = min(float(self.gripper_geometry.stroke_m), grasp.opening_m + self.config.open_margin_m)
+        opening = float(grasp.opening_m)  # the margin is planned in (`_grasp_config`)
         _, hit = check_path(self.robot, scene, np.array([pre.q, ik.q]), self.gripper_geometry, opening, True)
         if hit is not None:
             return grasp
@@ -822,12 +825,12 @@ class PickAndPlace:
         return self.config.grip_force_n
 
     def _open_for(self, grasp: Any) -> None:
-        """Open the jaws to the grasp's planned opening plus `open_margin_m` (fully when the gripper cannot
+        """Open the jaws to the grasp's planned opening, margin included (fully when the gripper cannot
         open part way, or for suction: release)."""
         open_to = getattr(self.gripper, "open_to", None)
         if self.gripper_kind == "parallel_jaw" and callable(open_to) and grasp.opening_m > 0:
             stroke = float(getattr(self.gripper_geometry, "stroke_m", 0.085))
-            open_to(min(stroke, float(grasp.opening_m) + self.config.open_margin_m))
+            open_to(min(stroke, float(grasp.opening_m)))
         else:
             self.gripper.open()
 
