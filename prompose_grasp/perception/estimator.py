@@ -306,6 +306,7 @@ class ProMPose:
         if init is None and self.network is not None and network_input is not None:
             init = self._network_pose(candidate, prior, *network_input)
             timings_ms["network"] = _ms(t0)
+            t0 = time.perf_counter()  # "pose" is the fit alone
         fit = fit_pose(
             points, prior, self.fit_config, init=init, support_plane_cam=plane_vector(grounding.support_plane)
         )
