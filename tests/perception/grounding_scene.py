@@ -36,15 +36,21 @@ class SceneFrame:
 
 
 def render_scene(width: int = 640, height: int = 480, seed: int = 0) -> SceneFrame:
+    return _render_table_scene("grounding_test", OBJECTS, width, height, seed)
+
+
+def _render_table_scene(scene_name: str, objects, width: int, height: int, seed: int) -> SceneFrame:
+    """The 1.2 x 0.8 m table with `objects` (name, family, params, rgb, (x, y), yaw) on it, seen by a
+    RealSense-like front camera."""
     from sim import NOISE_PRESETS, Appearance, CameraSpec, SceneBuilder, look_at, make_object, upright_pose
 
-    b = SceneBuilder("grounding_test")
+    b = SceneBuilder(scene_name)
     b.add_floor()
     b.add_skybox()
     b.add_light([0.5, -0.5, 2.5])
     table = b.add_table(size_xy_m=(1.2, 0.8), height_m=0.75)
     ids = {}
-    for name, family, params, rgb, xy, yaw in OBJECTS:
+    for name, family, params, rgb, xy, yaw in objects:
         asset = make_object(family, params)
         info = b.add_object(
             asset, name, upright_pose(asset, table, xy, yaw), appearance=Appearance(rgba=(*rgb, 1))
@@ -80,33 +86,4 @@ WALL_OBJECTS = (
 
 def render_wall_scene(width: int = 640, height: int = 480, seed: int = 0) -> SceneFrame:
     """The table of `render_scene` with `WALL_OBJECTS` on it, seen by the same camera."""
-    from sim import NOISE_PRESETS, Appearance, CameraSpec, SceneBuilder, look_at, make_object, upright_pose
-
-    b = SceneBuilder("grounding_wall_test")
-    b.add_floor()
-    b.add_skybox()
-    b.add_light([0.5, -0.5, 2.5])
-    table = b.add_table(size_xy_m=(1.2, 0.8), height_m=0.75)
-    ids = {}
-    for name, family, params, rgb, xy, yaw in WALL_OBJECTS:
-        asset = make_object(family, params)
-        info = b.add_object(
-            asset, name, upright_pose(asset, table, xy, yaw), appearance=Appearance(rgba=(*rgb, 1))
-        )
-        ids[name] = info.instance_id
-    cam = CameraSpec(
-        "front",
-        width,
-        height,
-        58.0,
-        look_at([0.0, -0.75, 1.25], [0.0, 0.0, 0.75]),
-        noise=NOISE_PRESETS["realsense"],
-    )
-    b.add_camera(cam)
-    with b.build() as world:
-        world.settle()
-        frame = world.render("front", rng=np.random.default_rng(seed))
-        gt = world.ground_truth_mask("front")
-        up_cam = world.T_world_cam("front")[:3, :3].T @ np.array([0.0, 0.0, 1.0])
-        poses = {g.name: g.as_pose9d() for g in world.ground_truth("front")}
-    return SceneFrame(frame.rgb, frame.depth_m, frame.intrinsics, gt, ids, up_cam, poses)
+    return _render_table_scene("grounding_wall_test", WALL_OBJECTS, width, height, seed)
