@@ -49,12 +49,13 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_bench(args: argparse.Namespace) -> int:
-    from prompose_grasp.eval.bench_estimator import format_report, run_estimator_benchmark, write_json
+    from prompose_grasp.eval.bench_estimator import format_report, run_estimator_benchmark
+    from prompose_grasp.eval.report import write_report_json
 
     report = run_estimator_benchmark(args.data, args.split, args.max_frames, args.candidates)
     print(format_report(report))
     if args.json_out:
-        write_json(report, args.json_out)
+        write_report_json(report, args.json_out)
         print(f"wrote {args.json_out}")
     return 0
 

@@ -23,7 +23,6 @@ docs/metrics.md). Only this script reads ground truth.
 
 from __future__ import annotations
 
-import json
 import logging
 import platform
 import sys
@@ -228,8 +227,3 @@ def format_report(report: dict[str, Any]) -> str:
             lines.append(f"  {k:<24} {v['median_ms']:8.1f} / {v['p90_ms']:8.1f}   (n={v['n']})")
     lines.append(f"tracking: {report['tracking_fps']:.1f} frames/s per object (mean over updates)")
     return "\n".join(lines)
-
-
-def write_json(report: dict[str, Any], path: str | Path) -> None:
-    with open(path, "w") as f:
-        json.dump(report, f, indent=1, default=float)

@@ -30,7 +30,6 @@ Library code never sees ground truth; only this script reads it.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import platform
@@ -43,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from prompose_grasp.eval.baselines import obb_baseline
+from prompose_grasp.eval.report import write_report_json
 from prompose_grasp.eval.synthetic import nocs_image_result, nocs_tables
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import back_project
@@ -291,8 +291,7 @@ def main(argv: list[str] | None = None) -> int:
     report = run(args.data, args.split, args.max_frames, FitConfig(**overrides))
     sys.stdout.write(format_report(report) + "\n")
     if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(report, indent=1, default=float))
+        write_report_json(report, args.json)
     return 0
 
 

@@ -21,7 +21,6 @@ visibility and y-symmetric categories come from the dataset (NOCS protocol). Gro
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import platform
 import sys
@@ -35,6 +34,7 @@ import numpy as np
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.eval.bench_fit import support_plane
+from prompose_grasp.eval.report import write_report_json
 from prompose_grasp.eval.synthetic import nocs_image_result, nocs_tables
 from prompose_grasp.geometry.pointcloud import back_project
 from prompose_grasp.geometry.pose9d import Pose9D
@@ -202,8 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     report = run(args.data, checkpoints, args.split, args.max_frames, not args.no_fit, args.refine)
     sys.stdout.write(format_report(report) + "\n")
     if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(report, indent=1, default=float))
+        write_report_json(report, args.json)
     return 0
 
 

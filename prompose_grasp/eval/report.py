@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.eval.nocs import NOCS_METRIC_KEYS
 
-__all__ = ["format_nocs_table"]
+__all__ = ["format_nocs_table", "write_report_json"]
 
 
 def _cell(value: Any) -> str:
@@ -52,3 +54,10 @@ def format_nocs_table(
         cells = [f"{_cell(row[k]):>{w}}" for k, w in zip(keys, widths)]
         lines.append("  ".join([f"{name!s:<{name_width}}", *cells]))
     return "\n".join(lines)
+
+
+def write_report_json(report: Mapping[str, Any], path: str | Path) -> None:
+    """Write a benchmark report as JSON (numpy scalars as floats), creating the folder if needed."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(report, indent=1, default=float))
