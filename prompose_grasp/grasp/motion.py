@@ -43,8 +43,10 @@ __all__ = [
     "MotionSegment",
     "PickPlaceMotion",
     "check_path",
+    "free_move",
     "plan_pick_place",
     "reach_bounds",
+    "timed_trajectory",
 ]
 
 
@@ -214,7 +216,8 @@ def _line(robot, T_from, T_to, q_start, T_tcp_flange, step_m) -> np.ndarray | No
     return np.array(Q)
 
 
-def _timed(robot: RobotModel, W: np.ndarray, cfg: MotionConfig) -> JointTrajectory:
+def timed_trajectory(robot: RobotModel, W: np.ndarray, cfg: MotionConfig) -> JointTrajectory:
+    """Joint waypoints W (K, 6) -> one trajectory of synchronised, velocity-limited joint segments."""
     vmax = robot.max_joint_speed * cfg.speed_scale
     t_all, q_all, t0 = [], [], 0.0
     for q0, q1 in itertools.pairwise(W):
@@ -271,7 +274,7 @@ def plan_pick_place(
         S, hit = check_path(robot, scene, W, grip, opening, include_target, held, T_tcp_obj, cfg)
         if hit is not None:
             raise NoFeasibleMotion(name, f"{hit.reason}: {hit.name}")
-        segments.append(MotionSegment(name, kind, W, S, _timed(robot, W, cfg), holding, opening))
+        segments.append(MotionSegment(name, kind, W, S, timed_trajectory(robot, W, cfg), holding, opening))
         return W[-1]
 
     # Approach: from the pre-grasp down the line to the grasp (walked backwards from the grasp's q, so the
@@ -280,7 +283,7 @@ def plan_pick_place(
     W_approach = None if W_back is None else W_back[::-1]
     if q_start is not None and W_approach is not None:
         q0 = robot._q(q_start, "q_start")
-        W_to = _free(
+        W_to = free_move(
             robot, scene_pick, q0, W_approach[0], grip, opening, None, T_tcp_obj, cfg, T_tcp_flange, False
         )
         add("to_pregrasp", "joint", W_to, False, True, scene_pick)
@@ -297,7 +300,7 @@ def plan_pick_place(
     W_pre = _line(robot, place.T_base_tcp, place.T_base_preplace, place.q, T_tcp_flange, cfg.line_step_m)
     if W_pre is None:
         raise NoFeasibleMotion("descend", "no IK solution along the straight line above the place pose")
-    W_transfer = _free(
+    W_transfer = free_move(
         robot, held_scene, q, W_pre[-1], grip, opening, obj, T_tcp_obj, cfg, T_tcp_flange, True
     )
     add("transfer", "joint", W_transfer, True, False, held_scene)
@@ -307,7 +310,7 @@ def plan_pick_place(
     return PickPlaceMotion(tuple(segments), grasp, place)
 
 
-def _free(robot, scene, q0, q1, grip, opening, held, T_tcp_obj, cfg, T_tcp_flange, holding) -> np.ndarray:
+def free_move(robot, scene, q0, q1, grip, opening, held, T_tcp_obj, cfg, T_tcp_flange, holding) -> np.ndarray:
     """A free move: the joint line q0 -> q1, or, when it collides, a detour: straight up from q0, a joint line
     across, straight down to q1, at 1, 2, 3 or 4 x `safe_height_m` above the higher end (the first free)."""
     held = held if holding else None

@@ -73,7 +73,7 @@ from prompose_grasp.grasp import (
     plan_pick_place,
     plan_place,
 )
-from prompose_grasp.grasp.motion import MotionConfig, _free, _timed
+from prompose_grasp.grasp.motion import MotionConfig, free_move, timed_trajectory
 from prompose_grasp.grasp.planner import build_scene
 from prompose_grasp.grasp.scene import CollisionScene
 from prompose_grasp.pipeline.command import Command, CommandNotUnderstood, CommandParser
@@ -847,16 +847,15 @@ class PickAndPlace:
         _, hit = check_path(self.robot, scene, W, grip, grasp.opening_m, True)
         if hit is not None:
             # The direct joint line collides: the grasp layer's detour (up, across, down), as for a place.
-            # (`_free` / `_timed` are the grasp layer's private helpers; see the report for a public one.)
             try:
-                W = _free(
+                W = free_move(
                     self.robot, scene, q_now, ik.q, grip, grasp.opening_m, None, None, MotionConfig(),
                     invert_T(grip.T_flange_tcp), False,
                 )  # fmt: skip
             except NoFeasibleMotion:
                 timings["execute"] += time.perf_counter() - t0
                 raise _Abort("collision", f"path to the pre-grasp hits {hit.name}: {hit.reason}") from None
-        detour = _timed(self.robot, W, MotionConfig()) if len(W) > 2 else None
+        detour = timed_trajectory(self.robot, W, MotionConfig()) if len(W) > 2 else None
         try:  # every move passes the validator before the first is sent
             if detour is not None:
                 self.validator.validate_trajectory(detour, q_now)
