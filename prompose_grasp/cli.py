@@ -117,6 +117,12 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--calibration", required=True, help="hand-eye file (YAML/JSON) with T_base_cam or T_flange_cam [m]"
     )
+    p.add_argument(
+        "--places",
+        default=None,
+        help="place-target file (YAML/JSON: bin, table, pallet, conveyor in the base frame [m]; "
+        "docs/hardware.md) for commands such as 'put the red mug in the bin'",
+    )
     p.add_argument("--dry-run", action="store_true", help="plan and print the moves; send nothing")
     p.add_argument("--json", dest="json_out", default=None, help="also write the outcome and moves here")
     p.set_defaults(func=_run_run)
@@ -128,7 +134,9 @@ def _run_run(args: argparse.Namespace) -> int:
     from prompose_grasp.hardware.run import CellSpec, run_command
     from prompose_grasp.robot.interfaces import LinearCommand
 
-    spec = CellSpec(args.robot, args.host, args.gripper, args.camera, args.calibration, args.dry_run)
+    spec = CellSpec(
+        args.robot, args.host, args.gripper, args.camera, args.calibration, args.dry_run, args.places
+    )
     result = run_command(spec, args.text)
     outcome = result.outcome
     print("dry run: moves planned, none sent" if result.dry_run else "moves sent")

@@ -34,6 +34,7 @@ from prompose_grasp.hardware.cameras import (
     RealSenseCamera,
     RecordedSequenceCamera,
 )
+from prompose_grasp.hardware.places import load_place_targets
 from prompose_grasp.hardware.robotiq import ROBOTIQ_PORT, RobotiqGripper
 from prompose_grasp.hardware.suction import IOSuctionGripper
 from prompose_grasp.hardware.ur_rtde import RtdeLinks, URRtdeArm, URRtdeConfig, URRtdeLinks
@@ -81,6 +82,9 @@ class CellSpec:
         camera: "realsense", "kinect", or a folder of recorded NNNNNN-color/depth.png frames.
         calibration: hand-eye file (T_base_cam or T_flange_cam; see `hardware.calibration`).
         dry_run: plan and print every move, send none.
+        places: place-target file (bin, table, pallet, conveyor in `base`; see `hardware.places`), or None:
+            then place commands that name a fixture end `not_found` (objects seen in the image, "in the
+            white bowl", still work).
     """
 
     robot: str
@@ -89,6 +93,7 @@ class CellSpec:
     camera: str
     calibration: str | Path
     dry_run: bool = False
+    places: str | Path | None = None
 
     def __post_init__(self) -> None:
         if self.gripper not in GRIPPERS:
@@ -298,6 +303,7 @@ def run_command(
     from prompose_grasp.perception.estimator import ProMPose
 
     calibration = load_calibration(spec.calibration)
+    place_targets = load_place_targets(spec.places) if spec.places is not None else {}
     kind = GRIPPERS[spec.gripper]
     geometry = get_gripper(kind)
     robot = robot_model or load_robot(spec.robot, tcp_offset=geometry.T_flange_tcp)
@@ -324,15 +330,18 @@ def run_command(
     )
     estimator = estimator or ProMPose.default()
     logger.info(
-        "%s %r on %s with %s, camera %s (%s)",
+        "%s %r on %s with %s, camera %s (%s), place targets: %s",
         "dry run of" if spec.dry_run else "running",
         command,
         robot.name,
         spec.gripper,
         spec.camera,
         calibration.key,
+        ", ".join(place_targets) or "none",
     )
     with arm, gripper, camera:
-        pnp = PickAndPlace(arm, gripper, camera, estimator, robot, kind, config=config, on_event=on_event)
+        pnp = PickAndPlace(
+            arm, gripper, camera, estimator, robot, kind, place_targets, config=config, on_event=on_event
+        )
         outcome = pnp.run(command)
     return RunResult(outcome, tuple(log), tuple(arm.sent), spec.dry_run)

@@ -22,6 +22,7 @@ from rtde_fakes import CallLog, FakeControl, FakeLinks, FakeReceive
 from prompose_grasp.cli import main
 from prompose_grasp.errors import InvalidInputError, UnknownNameError
 from prompose_grasp.geometry.se3 import T_from_pose_vector, pose_vector_from_T
+from prompose_grasp.grasp import get_gripper
 from prompose_grasp.hardware import CellSpec, run_command, write_intrinsics
 from prompose_grasp.pipeline import PickConfig
 from prompose_grasp.robot import HOME_Q, load_robot
@@ -129,6 +130,59 @@ def test_real_path_sends_the_validated_moves_to_the_control_link(recording, esti
         assert args[1:] == (command.speed_m_s, command.accel_m_s2, True)
     assert log.names()[0] == "setTcp" and log.names()[-2:] == ["stopScript", "disconnect"]
     assert "SET POS 255" in gripper_server.log  # closed on the bottle
+
+
+@pytest.fixture(scope="module")
+def places_file(tmp_path_factory):
+    """The tabletop scene's bin as a place-target file, as a user would measure it in the base frame."""
+    from sim.pick import place_targets_of
+    from sim.scene_file import load_world
+
+    with load_world(SCENE, seed=0) as world:
+        b = place_targets_of(world)["bin"]
+    path = tmp_path_factory.mktemp("cell") / "places.yaml"
+    entry = {"kind": "bin", "T_base_surface": b.T_base_surface.tolist(),
+             "half_extents_m": b.half_extents_xy_m.tolist(), "wall_height_m": b.wall_height_m}  # fmt: skip
+    path.write_text(yaml.safe_dump({"place_targets": {"bin": entry}}))
+    return path, b
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_dry_run_puts_the_bottle_into_the_bin_of_the_places_file(recording, estimator, places_file):
+    seq, calibration, _ = recording
+    path, oracle_bin = places_file
+    spec = CellSpec("ur5e", None, "robotiq", str(seq), calibration, dry_run=True, places=path)
+    result = run_command(spec, "put the green bottle in the bin", estimator=estimator)
+    assert result.outcome.success, result.outcome.message
+    assert [m for m in result.moves if m.startswith("gripper")][-2:] == [
+        "gripper close, force 60.0 N -> holding",
+        "gripper open",
+    ]
+    # The release: the arm's last command before the jaws open again ends over the bin's floor, i.e. the
+    # TCP lies inside the floor's footprint (half extents; the planner keeps the whole object inside it) and
+    # between the floor and a hand's height above the walls (the object is let go just above the floor).
+    n_before_release = sum(
+        1 for m in result.moves[: result.moves.index("gripper open", 1)] if not m.startswith("gripper")
+    )
+    q_release = result.arm_commands[n_before_release - 1].q[-1]
+    robot = load_robot("ur5e", tcp_offset=get_gripper("parallel_jaw").T_flange_tcp)
+    tcp_in_bin = np.linalg.inv(oracle_bin.T_base_surface) @ robot.fk_tcp(q_release)[:, 3]
+    assert np.all(np.abs(tcp_in_bin[:2]) <= oracle_bin.half_extents_xy_m)
+    assert 0.0 < tcp_in_bin[2] < oracle_bin.wall_height_m + 0.25
+
+
+def test_cli_run_refuses_a_bad_places_file_with_exit_2(tmp_path, capsys):
+    (tmp_path / "000000-color.png").write_bytes(b"")
+    (tmp_path / "000000-depth.png").write_bytes(b"")
+    cal = tmp_path / "cal.yaml"
+    cal.write_text(yaml.safe_dump({"T_base_cam": np.eye(4).tolist()}))
+    places = tmp_path / "places.yaml"
+    places.write_text(yaml.safe_dump({"place_targets": {"shelf": {"kind": "surface"}}}))
+    argv = ["run", "--gripper", "robotiq", "--camera", str(tmp_path), "--command", "put the mug in the bin",
+            "--calibration", str(cal), "--places", str(places), "--dry-run"]  # fmt: skip
+    assert main(argv) == 2
+    assert "'shelf' is not a fixture a command can name" in capsys.readouterr().err
 
 
 def test_cell_spec_checks_its_choices(tmp_path):
