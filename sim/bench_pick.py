@@ -234,6 +234,13 @@ def run_benchmark(
                 wall_time_s=s["timings_s"]["episode_wall"],
                 timings_s=s["timings_s"],
                 attempts=len(s["outcome"]["attempts"]),
+                attempt_results=[
+                    f"{a['method']}: {a['result']} ({a['message']})" for a in s["outcome"]["attempts"]
+                ],
+                moved=s["evaluation"].get("moved"),
+                estimate_centre_error_m=s.get("estimate_centre_error_m"),
+                estimate_size_m=None if s["estimate"] is None else s["estimate"]["size"],
+                ground_truth_size_m=None if s["ground_truth"] is None else s["ground_truth"]["size"],
             )
         except Exception as exc:
             log.exception("episode seed %d crashed", seed)

@@ -30,7 +30,9 @@ about x, and the 180 degree end-over-end flip); ``box`` (the 180 degree rotation
 ``spherical`` (any rotation).
 
 Physics: each asset also carries convex collision parts (a hull per part; the mug handle is split into several
-hulls so the handle has a hole). Visual meshes are watertight part by part so MuJoCo can compute volumes.
+hulls so the handle has a hole; the open containers, bowl, cup and mug, are hollow: a base disc and their wall
+in angular sectors, so a finger fits inside and a rim can be gripped). Visual meshes are watertight part by
+part so MuJoCo can compute volumes.
 """
 
 from __future__ import annotations
@@ -69,6 +71,9 @@ SYMMETRIES = ("none", "y_continuous", "x_continuous", "box", "spherical")
 #: Tessellation: segments around a body of revolution. 48 keeps the chord error of a 5 cm radius below
 #: 0.11 mm (r (1 - cos(pi / 48))), far under one pixel at working distances.
 _SECTIONS = 48
+#: Angular sectors of the convex pieces of a hollow wall (`_shell_hulls`): a 24-gon's chord is within
+#: r (1 - cos(pi / 24)) = 0.9 mm of a 10 cm radius, less than a wall's thickness.
+_SHELL_SECTORS = 24
 
 
 @dataclass(frozen=True, eq=False)
@@ -168,6 +173,62 @@ def _sweep_circle(
     return mesh
 
 
+def _convex_solid(vertices: np.ndarray, polygons: Sequence[Sequence[int]]) -> trimesh.Trimesh:
+    """A convex polyhedron from its vertices (V, 3) and its faces as vertex-index polygons (any winding):
+    each face is turned to face away from the centroid (right for a convex solid) and fan-triangulated."""
+    v = np.asarray(vertices, dtype=np.float64)
+    centre = v.mean(axis=0)
+    tris = []
+    for poly in polygons:
+        f = list(poly)
+        n = np.cross(v[f[1]] - v[f[0]], v[f[2]] - v[f[0]])
+        if n @ (v[f].mean(axis=0) - centre) < 0:
+            f = f[::-1]
+        tris += [[f[0], f[k], f[k + 1]] for k in range(1, len(f) - 1)]
+    mesh = trimesh.Trimesh(v, np.asarray(tris), process=False)
+    mesh.metadata["convex"] = True  # by construction: `_finish` need not test it
+    return mesh
+
+
+def _shell_hulls(
+    base: Sequence[float], walls: Sequence[Sequence[Sequence[float]]], sectors: int = _SHELL_SECTORS
+) -> list[trimesh.Trimesh]:
+    """Convex collision pieces of a hollow solid of revolution about +y.
+
+    `base` (r0, y0, r1, y1) is the base disc, a frustum of radius r0 at height y0 and r1 at y1 [m]. Each wall
+    polygon is a convex (radius, height) polygon of the profile off the axis [m], cut into `sectors` angular
+    sectors, each piece the polygon swept between the sector's two bounding angles (a prism with flat sides).
+    A bowl, cup or mug built from them is hollow as the real one is, where the convex hull of the whole
+    part would be a solid lid over the opening (no finger fits inside, a rim cannot be gripped).
+    """
+    from scipy.spatial import ConvexHull
+
+    r0, y0, r1, y1 = (float(x) for x in base)
+    phi = np.linspace(0.0, 2.0 * math.pi, _SECTIONS, endpoint=False)
+    rings = [
+        np.stack([r * np.cos(phi), np.full_like(phi, y), r * np.sin(phi)], axis=1)
+        for r, y in ((r0, y0), (r1, y1))
+    ]
+    n = _SECTIONS
+    sides = [[k, (k + 1) % n, n + (k + 1) % n, n + k] for k in range(n)]
+    out = [_convex_solid(np.vstack(rings), [list(range(n)), list(range(n, 2 * n)), *sides])]
+    for poly in walls:
+        pts = np.asarray(poly, dtype=np.float64)
+        pts = pts[ConvexHull(pts).vertices]  # a band of a curved wall: its 2-D hull (within the sagitta)
+        m = len(pts)
+        for k in range(sectors):
+            a, b = np.array([k, k + 1]) * 2.0 * math.pi / sectors
+            v = np.vstack(
+                [
+                    np.stack([pts[:, 0] * math.cos(a), pts[:, 1], pts[:, 0] * math.sin(a)], axis=1),
+                    np.stack([pts[:, 0] * math.cos(b), pts[:, 1], pts[:, 0] * math.sin(b)], axis=1),
+                ]
+            )
+            quads = [[i, (i + 1) % m, m + (i + 1) % m, m + i] for i in range(m)]
+            out.append(_convex_solid(v, [list(range(m)), list(range(m, 2 * m)), *quads]))
+    return out
+
+
 def _smooth_noise(points: np.ndarray, seed: int, n_waves: int = 6) -> np.ndarray:
     """Smooth scalar field in [-1, 1] on (N, 3) unit-scale points: a sum of random low-frequency waves."""
     rng = np.random.default_rng(seed)
@@ -230,7 +291,11 @@ def _build_bowl(p: Mapping[str, float]) -> Parts:
         )
     profile = [(0, 0), *outer, (R, h), (R - t, h), *inner, (0, t)]
     bowl = _revolve_y(profile)
-    return [bowl], [bowl]
+    # Collision: hollow. The base disc, and the wall in 4 bands of the profile (outer and inner samples at
+    # the same s face each other), each band cut into sectors (`_shell_hulls`).
+    inner_up = inner[::-1]  # s from 0 (foot) to 1 (rim), as `outer`
+    bands = [[*outer[a : b + 1], *inner_up[a : b + 1][::-1]] for a, b in ((0, 3), (3, 6), (6, 9), (9, 11))]
+    return [bowl], _shell_hulls((rf, 0.0, ri_f, t), bands)
 
 
 def _build_cup(p: Mapping[str, float]) -> Parts:
@@ -238,7 +303,9 @@ def _build_cup(p: Mapping[str, float]) -> Parts:
     tb = max(2.0 * t, 0.004)  # base thicker than the wall
     profile = [(0, 0), (rb, 0), (rt, h), (rt - t, h), (rb - t + (rt - rb) * tb / h, tb), (0, tb)]
     cup = _revolve_y(profile)
-    return [cup], [cup]
+    r_out = rb + (rt - rb) * tb / h  # the outer wall at the base's top
+    wall = [(r_out - t, tb), (r_out, tb), (rt, h), (rt - t, h)]
+    return [cup], _shell_hulls((rb, 0.0, r_out, tb), [wall])  # hollow, as the cup is
 
 
 def _build_mug(p: Mapping[str, float]) -> Parts:
@@ -254,12 +321,14 @@ def _build_mug(p: Mapping[str, float]) -> Parts:
         [r - t / 2.0 + reach * np.cos(phi), h / 2.0 + a * np.sin(phi), np.zeros_like(phi)], axis=1
     )
     handle = _sweep_circle(path, rho, binormal=np.array([0.0, 0.0, 1.0]))
-    # Collision: the body's hull plus the handle cut into 4 convex-ish pieces, so the handle keeps its hole.
+    # Collision: the body hollow (base and wall sectors, `_shell_hulls`) plus the handle cut into 4 convex-ish
+    # pieces, so the handle keeps its hole.
     pieces = []
     for k in range(4):
         sub = path[k * 6 : k * 6 + 7]
         pieces.append(_sweep_circle(sub, rho, binormal=np.array([0.0, 0.0, 1.0]), sections=8).convex_hull)
-    return [body, handle], [body.convex_hull, *pieces]
+    shell = _shell_hulls((r, 0.0, r, tb), [[(r - t, tb), (r, tb), (r, h), (r - t, h)]])
+    return [body, handle], [*shell, *pieces]
 
 
 def _build_laptop(p: Mapping[str, float]) -> Parts:
@@ -493,7 +562,7 @@ def _finish(
     lo, hi = allv.min(axis=0), allv.max(axis=0)
     centre = (lo + hi) / 2.0
     parts = [m.copy() for m in parts]
-    collision = [m.copy() if m.is_convex else m.convex_hull for m in collision]
+    collision = [m.copy() if m.metadata.get("convex") or m.is_convex else m.convex_hull for m in collision]
     for m in (*parts, *collision):
         m.apply_translation(-centre)
     size = (hi - lo).astype(np.float64)

@@ -294,6 +294,17 @@ def run_episode(
             )[:3]
         name = _target_name(world, command, first_world, start)
         ev = evaluate_target(world, name, start[name])
+        # Which objects the run moved (> 1 cm): a reported hold whose target did not rise held a neighbour.
+        ev["moved"] = {
+            o.name: {
+                "lift_m": round(float(world.T_world_obj(o.name)[2, 3] - start[o.name][2, 3]), 4),
+                "moved_m": round(
+                    float(np.linalg.norm(world.T_world_obj(o.name)[:3, 3] - start[o.name][:3, 3])), 4
+                ),
+            }
+            for o in world.objects
+            if np.linalg.norm(world.T_world_obj(o.name)[:3, 3] - start[o.name][:3, 3]) > 0.01
+        }
         lifted = ev["lift_height_m"] >= MIN_LIFT_M
         gt_cam = None
         overlays = []
@@ -348,6 +359,9 @@ def run_episode(
             "evaluation": ev,
             "estimate": None if first is None else _pose_dict(first.pose),
             "ground_truth": None if gt_cam is None else _pose_dict(gt_cam),
+            "estimate_centre_error_m": None
+            if first is None or gt_cam is None
+            else float(np.linalg.norm(np.asarray(first.pose.t) - np.asarray(gt_cam.t))),
             "frame": "camera (OpenCV) of the first observation",
             "timings_s": {**outcome.timings_s, "episode_wall": time.perf_counter() - t_wall},
             "sim_time_s": float(world.data.time) - t0_sim,

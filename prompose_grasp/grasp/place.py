@@ -20,6 +20,7 @@ ranked when asked).
 
 from __future__ import annotations
 
+import logging
 import math
 from collections import Counter
 from collections.abc import Sequence
@@ -36,6 +37,8 @@ from prompose_grasp.grasp.planner import _branch_order, _gripper, _verified, gri
 from prompose_grasp.grasp.scene import CollisionScene
 from prompose_grasp.grasp.types import Grasp, ObjectModel
 from prompose_grasp.robot.model import RobotModel
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "PalletPattern",
@@ -256,7 +259,9 @@ def plan_place(
         scene: a prebuilt `CollisionScene` without the held object.
 
     Raises:
-        NoFeasiblePlace: no candidate passed (with counts per reason).
+        NoFeasiblePlace: no candidate passed (with counts per reason); on a pallet whose pattern of cartons
+            this size does not fit the deck, with the reason "pattern_too_large" (the layout's message is
+            the exception's `__cause__`).
     """
     cfg = config or PlaceConfig()
     grip = _gripper(gripper)
@@ -272,7 +277,11 @@ def plan_place(
     candidates: list[tuple[tuple[int, int, int] | None, np.ndarray, float]] = []  # (slot, centre_surf, yaw)
     if target.kind == "pallet":
         half_xy, half_h = _footprint(R_surf_obj, size)
-        layout = pallet_layout(target, half_xy, half_h)
+        try:
+            layout = pallet_layout(target, half_xy, half_h)
+        except InvalidInputError as exc:  # the pattern of cartons this size is larger than the deck
+            log.info("no place on the pallet: %s", exc)
+            raise NoFeasiblePlace({"pattern_too_large": 1}, 0) from exc
         taken = _taken_slots(target, obstacles, layout)
         for slot in layout:
             layer = slot.index[2]

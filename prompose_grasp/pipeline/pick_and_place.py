@@ -73,7 +73,7 @@ from prompose_grasp.grasp import (
     plan_pick_place,
     plan_place,
 )
-from prompose_grasp.grasp.motion import MotionConfig, free_move, timed_trajectory
+from prompose_grasp.grasp.motion import MotionConfig, free_move, place_support_fixture, timed_trajectory
 from prompose_grasp.grasp.planner import build_scene
 from prompose_grasp.grasp.scene import CollisionScene
 from prompose_grasp.pipeline.command import Command, CommandNotUnderstood, CommandParser
@@ -102,7 +102,8 @@ class PickConfig:
         joint_speed_rad_s, joint_accel_rad_s2: free moves to the pre-grasp [rad/s, rad/s^2].
         linear_speed_m_s, linear_accel_m_s2: approach and lift lines [m/s, m/s^2].
         grip_force_n: jaw force per finger [N] (suction holds with the cup's full `max_force_n`).
-        min_jaw_width_m: jaws closed narrower than this held nothing [m] (the 2F-85 class stops at 0).
+        min_jaw_width_m: jaws closed narrower than this held nothing [m] (the 2F-85 class stops at 0); for a
+            grasp planned on a thinner part (a cup's wall) half its planned width, at least 1 mm.
         moved_min_m: on re-observation the object counts as picked when its estimate moved more than this
             (or is no longer seen where it stood) [m]; half the default 10 cm lift.
         max_scene_points: observed points handed to the collision scene (evenly thinned) [-].
@@ -112,6 +113,10 @@ class PickConfig:
             the grasp's opening, and so the approach's collision check, include it.
         candidates: estimator candidates considered per observation (estimators with `estimate_all`).
         candidate_ratio: candidates scoring at least this fraction of the best one count as the object [-].
+        candidate_order: the order those candidates are tried in: "top_first" (highest top first: the top
+            layer of a stack of like objects, a pallet of cartons) or "score" (the best match first: a
+            tabletop of different things, where a candidate at 90 % of the best score is often another
+            object, e.g. a tea box's 0.76 next to its 0.84 on a bottle and a can behind it).
         max_objects: objects moved by one plural command at most.
         lift_clearance_m: the lift after a grasp rises at least the object's estimated height plus this, so
             the held object clears what stood beside it (cartons in a layer) [m].
@@ -147,6 +152,7 @@ class PickConfig:
     open_margin_m: float = 0.01
     candidates: int = 4
     candidate_ratio: float = 0.9
+    candidate_order: str = "top_first"
     max_objects: int = 12
     lift_clearance_m: float = 0.03
     max_lift_m: float = 0.35
@@ -189,9 +195,18 @@ class PickConfig:
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
                 raise InvalidInputError(f"PickConfig.{name} must be finite and > 0, got {v}")
+        if self.candidate_order not in _CANDIDATE_ORDERS:
+            raise InvalidInputError(
+                f"PickConfig.candidate_order must be one of {', '.join(_CANDIDATE_ORDERS)}, "
+                f"got {self.candidate_order!r}"
+            )
         h = self.max_object_height_m
         if h is not None and not (math.isfinite(float(h)) and float(h) > 0):
             raise InvalidInputError(f"PickConfig.max_object_height_m must be None or > 0 m, got {h}")
+
+
+#: `PickConfig.candidate_order` choices.
+_CANDIDATE_ORDERS = ("top_first", "score")
 
 
 class _Abort(Exception):
@@ -269,10 +284,10 @@ class PickAndPlace:
         self.config = config or PickConfig()
         self.on_event = on_event
         self.parser = parser
-        self.validator = validator or getattr(arm, "validator", None)
-        if not isinstance(self.validator, CommandValidator):
-            limits = ValidatorConfig.for_robot(robot_model)
-            self.validator = CommandValidator(limits, fk_tcp=robot_model.fk_tcp)
+        chosen = validator or getattr(arm, "validator", None)
+        if not isinstance(chosen, CommandValidator):
+            chosen = CommandValidator(ValidatorConfig.for_robot(robot_model), fk_tcp=robot_model.fk_tcp)
+        self.validator: CommandValidator = chosen
 
     # ------------------------------------------------------------------------------------------------ run
     def run(self, command: str | Command) -> PickOutcome:
@@ -480,8 +495,16 @@ class PickAndPlace:
             observations.append(_Observation(frame, est, target, support, points, q_seen))
         if not observations:
             raise _Abort("not_found", f"every {cmd.object_prompt!r} in view is already on the {cmd.target}")
-        # What lies on top first (the top layer of a stack): highest top along the support normal.
-        observations.sort(key=lambda o: -_top_height(o.target, o.support))
+        if self.config.candidate_order == "top_first":
+            # What lies on top first (the top layer of a stack): highest top along the support normal.
+            observations.sort(key=lambda o: -_top_height(o.target, o.support))
+        else:  # "score": the best match first (candidates come best first)
+            observations.sort(key=lambda o: -_score(o))
+        logger.info(
+            "candidates for %r: %s",
+            cmd.object_prompt,
+            "; ".join(f"{_score(o):.3f} at {np.round(o.target.pose.t, 3).tolist()}" for o in observations),
+        )
         chosen = observations[0]
         state["estimates"].append(chosen.estimate)
         state["T_base_cams"].append(T_base_cam)
@@ -632,9 +655,18 @@ class PickAndPlace:
         if place_target is not None:
             held_scene = self._held_scene(obs, place_target, state, timings)
         failures: list[_Abort] = []
-        for i, planned in enumerate(grasps[: self.config.grasps_per_estimate]):
+        tried = 0
+        for i, planned in enumerate(grasps):
+            if tried >= self.config.grasps_per_estimate:
+                break
             self._check_time(t_start)
             grasp = self._deepened(self._pressed(planned), obs.target, scene)
+            if not self._lines_continuous(grasp):
+                # The arm's linear approach or lift would flip a wrist on the way (refused halfway): skip
+                # the grasp before anything moves (it does not count as a try).
+                logger.info("grasp %d skipped: its approach or lift line is not continuous in joint space", i)
+                continue
+            tried += 1
             n = len(state["attempts"]) + 1
             self._emit(
                 "execute",
@@ -660,6 +692,8 @@ class PickAndPlace:
             state["grasp"] = grasp
             return
         if not failures:
+            if tried == 0 and grasps:
+                raise _Abort("ik_failed", f"all {len(grasps)} grasps' approach or lift lines flip a wrist")
             raise _Abort("no_feasible_grasp", "the plan held no grasp")
         raise failures[-1]
 
@@ -742,6 +776,9 @@ class PickAndPlace:
         if obs.support is not None and _plane_z(obs.support) < _plane_z(place_plane):
             support = obs.support
         obstacles = [o for o in state["placed"] if not _overlaps(o, obs.target)]
+        body = place_support_fixture(target)  # a conveyor's body below its belt: often not in this view
+        if body is not None:
+            obstacles.append(body)
         cfg = self.config.grasp or GraspConfig()
         scene = build_scene(
             obs.target, self.robot, self.gripper_geometry, obstacles, support, P, obs.q_seen, cfg
@@ -804,6 +841,32 @@ class PickAndPlace:
         retreat[:3, 3] += extra * a
         logger.info("grasp moved %.1f mm deeper along its approach", 1e3 * extra)
         return dataclasses.replace(grasp, T_base_tcp=T, q=ik.q, T_base_retreat=retreat)
+
+    def _lines_continuous(self, grasp: Any) -> bool:
+        """The approach (pre-grasp -> grasp) and the lift (grasp -> retreat) as the arm's `move_linear` runs
+        them: IK every `_LINE_STEP_M` along the line, each seeded with the last; False when a joint jumps
+        more than `_LINE_JUMP_RAD` between neighbours (a branch flip near a wrist singularity: the arm's
+        validator refuses such a line halfway) or a point has no IK."""
+        if grasp.q is None:
+            return True
+        pre = self.robot.ik(grasp.T_base_pregrasp, q_seed=grasp.q, frame="tcp")
+        if not pre.success:
+            return False
+        for T0, T1, q0 in (
+            (grasp.T_base_pregrasp, grasp.T_base_tcp, pre.q),
+            (grasp.T_base_tcp, grasp.T_base_retreat, np.asarray(grasp.q, dtype=np.float64)),
+        ):
+            dp = np.asarray(T1[:3, 3]) - np.asarray(T0[:3, 3])
+            n = max(2, math.ceil(float(np.linalg.norm(dp)) / _LINE_STEP_M))
+            q_prev = np.asarray(q0, dtype=np.float64)
+            for frac in np.linspace(1.0 / n, 1.0, n):
+                T = np.array(T1, dtype=np.float64)
+                T[:3, 3] = np.asarray(T0[:3, 3]) + frac * dp
+                ik = self.robot.ik(T, q_seed=q_prev, frame="tcp")
+                if not ik.success or float(np.max(np.abs(ik.q - q_prev))) > _LINE_JUMP_RAD:
+                    return False
+                q_prev = ik.q
+        return True
 
     def _pressed(self, grasp: Any) -> Any:
         """A suction grasp pressed `compliance_m` into its face along the approach (the bellows give; the cup
@@ -899,7 +962,10 @@ class PickAndPlace:
             width = float(self.gripper.width())
             held = bool(self.gripper.grasp_detected())
             if self.gripper_kind == "parallel_jaw":
-                held = held and width >= self.config.min_jaw_width_m
+                # A thin wall (a paper cup's 2 mm rim) stops the jaws below `min_jaw_width_m`: the floor is
+                # then half the planned contact width.
+                floor = min(self.config.min_jaw_width_m, 0.5 * float(getattr(grasp, "width_m", 0.0) or 0.0))
+                held = held and width >= max(floor, _MIN_JAW_FLOOR_M)
             if not held:
                 self._release_and_back_off(grasp)
                 what = f"jaw width {1e3 * width:.1f} mm" if self.gripper_kind == "parallel_jaw" else "no seal"
@@ -990,10 +1056,9 @@ class PickAndPlace:
             motion = plan_pick_place(
                 self.robot, grasp, place, carried, scene, held_scene, self.gripper_geometry, q_now
             )
-        except NoFeasiblePlace as exc:
-            raise _Abort("no_feasible_grasp", str(exc)) from None
-        except InvalidInputError as exc:  # e.g. a pallet pattern the estimated carton does not fit
-            raise _Abort("no_feasible_grasp", f"no place pose: {exc}") from None
+        except NoFeasiblePlace as exc:  # the cause, when there is one: e.g. the pallet pattern's misfit
+            cause = f" ({exc.__cause__})" if exc.__cause__ is not None else ""
+            raise _Abort("no_feasible_grasp", f"{exc}{cause}") from None
         except NoFeasibleMotion as exc:
             reason = "ik_failed" if "IK" in exc.reason else "collision"
             raise _Abort(reason, str(exc)) from None
@@ -1047,10 +1112,23 @@ _CONTAINERS = ("bowl", "cup", "mug", "bin", "basket", "bucket", "pot", "tray")
 #: Place candidates examined (the planner's default 200 are all within ~0.3 m of the preferred point: a belt
 #: with one carton already at its centre had no free spot among them).
 _PLACE_CONFIG = PlaceConfig(max_candidates=2000)
+#: Jaws closed narrower than this held nothing, whatever the planned width (the 2F-85 class reads 0 when
+#: closed on nothing; the sim's gripper reads negative) [m].
+_MIN_JAW_FLOOR_M = 0.001
+#: `_lines_continuous` solves IK every this much along a line [m] ...
+_LINE_STEP_M = 0.005
+#: ... and a joint changing more than this between neighbours is a jump, not a motion [rad] (away from
+#: singularities a 5 mm tcp step moves no joint more than ~0.03 rad; the validator allows 0.2 per waypoint).
+_LINE_JUMP_RAD = 0.2
 #: The most a grasp is moved deeper along its approach by `_deepened` [m].
 _MAX_DEEPEN_M = 0.03
 #: Observed points this close to a place surface are the surface itself [m] (sensor noise at 1-2 m).
 _SURFACE_BAND_M = 0.02
+
+
+def _score(obs: _Observation) -> float:
+    """The grounding score of an observation's estimate (1 for estimators without one)."""
+    return float(getattr(obs.estimate, "score", 1.0))
 
 
 def _plane_z(plane: Plane) -> float:

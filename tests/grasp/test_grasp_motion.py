@@ -146,6 +146,27 @@ def test_pallet_slots_fill_in_order():
         plan_place(carton, grasp, pallet, robot, cup, everything)
 
 
+def test_a_pallet_pattern_larger_than_the_deck_is_no_feasible_place():
+    cup = SuctionCupGeometry()
+    robot = load_robot("ur10e", tcp_offset=cup.T_flange_tcp)
+    size = np.array([0.3, 0.2, 0.2])  # obj x, y (up), z: a 0.3 x 0.2 m footprint
+    carton = ObjectModel("carton", Pose9D(R_UP, [0.0, -0.7, 0.1], size), family="carton")
+    grasp = plan_grasps(carton, robot, cup, [], TABLE, None, HOME_Q).best
+    # 2 x 2 cartons with a 1 cm gap need 0.61 x 0.41 m; the deck is 0.5 x 0.4 m.
+    small = PlaceTarget(
+        "pallet", make_T(np.eye(3), [0.0, 0.7, 0.1]), [0.25, 0.2], pattern=PalletPattern(2, 2, 1, 0.01)
+    )
+    with pytest.raises(NoFeasiblePlace) as info:
+        plan_place(carton, grasp, small, robot, cup)
+    assert info.value.rejected == {"pattern_too_large": 1}
+    assert "does not fit the deck" in str(info.value.__cause__)
+    # The same pattern on a deck 1 cm larger each way than it needs has a place: the check is the fit.
+    fits = PlaceTarget(
+        "pallet", make_T(np.eye(3), [0.0, 0.7, 0.1]), [0.315, 0.215], pattern=PalletPattern(2, 2, 1, 0.01)
+    )
+    assert plan_place(carton, grasp, fits, robot, cup).slot == (0, 0, 0)
+
+
 def _moving_points(q: np.ndarray, opening: float) -> np.ndarray:
     """Points of the arm and the gripper at q, computed independently of the planner: both ends of every link
     capsule, and the 8 corners of every gripper part at the opening."""

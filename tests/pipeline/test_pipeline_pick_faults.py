@@ -12,7 +12,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from prompose_grasp.errors import CameraError, ObjectNotFoundError, UnreachableError, UnsafeCommandError
+from prompose_grasp.errors import (
+    CameraError,
+    InvalidInputError,
+    ObjectNotFoundError,
+    UnreachableError,
+    UnsafeCommandError,
+)
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.se3 import invert_T, make_T
@@ -55,9 +61,10 @@ class Camera:
 class OracleEstimator:
     """Returns a box at `t_base` (base frame) in the camera frame of each frame; or raises not-found."""
 
-    def __init__(self, t_base=(-0.5, 0.15, 0.03), found: bool = True):
+    def __init__(self, t_base=(-0.5, 0.15, 0.03), found: bool = True, size=(0.05, 0.06, 0.06)):
         self.t_base = np.asarray(t_base, dtype=np.float64)
         self.found = found
+        self.size = size
         self.calls = 0
 
     def estimate(self, frame, prompt):
@@ -69,7 +76,7 @@ class OracleEstimator:
         if not frame.depth_m[int(K.cy), u] > 0:  # as the estimator: no depth points on the object
             raise ObjectNotFoundError(f"the mask of {prompt!r} holds no valid depth points")
         T_cam_base = invert_T(frame.T_base_cam)
-        pose = Pose9D(R_UP, self.t_base, [0.05, 0.06, 0.06]).transformed(T_cam_base)
+        pose = Pose9D(R_UP, self.t_base, self.size).transformed(T_cam_base)
         mesh = trimesh.creation.box(extents=pose.size)
         mesh.apply_transform(pose.to_matrix())
         n_cam = T_cam_base[:3, :3] @ np.array([0.0, 0.0, 1.0])
@@ -201,6 +208,65 @@ def test_unparsable_command_is_not_understood_and_says_so():
     assert outcome.reason == "not_understood" and not outcome.success
     assert "could not understand" in outcome.message and "pick up the red mug" in outcome.message
     assert outcome.attempts == () and outcome.estimates == ()
+
+
+def test_a_thin_wall_between_the_jaws_is_a_hold_and_the_same_stop_on_a_box_is_not():
+    # A 4 mm plate (a cup's wall seen as a box): the jaws stop at 3 mm (the pads squeeze it); that is below
+    # the 4 mm `min_jaw_width_m` but above half the planned 4 mm width: held.
+    plate = OracleEstimator(size=(0.004, 0.06, 0.06))
+    outcome, _ = _run(estimator=plate, object_width_m=0.003)
+    assert outcome.success, outcome.message
+    assert outcome.attempts[-1].gripper_width_m == pytest.approx(0.003)
+    # The same 3 mm stop on the 5 cm box is nothing held (fingers closed past where the box should be).
+    outcome, _ = _run(object_width_m=0.003)
+    assert outcome.reason == "slipped" and "3.0 mm" in outcome.message
+
+
+class TwoCandidates(OracleEstimator):
+    """Two candidates for the prompt: the best match (score 0.84, 6 cm tall) and, 90 % as good, a taller
+    object (score 0.78, 10 cm tall: another thing behind it)."""
+
+    def estimate_all(self, frame, prompt, max_objects=None):
+        best = self.estimate(frame, prompt)
+        best.score = 0.84
+        other = OracleEstimator(t_base=(-0.45, -0.15, 0.05), size=(0.05, 0.10, 0.06)).estimate(frame, prompt)
+        other.score = 0.78
+        return [best, other]
+
+
+@pytest.mark.parametrize(("order", "y_expected"), [("score", 0.15), ("top_first", -0.15)])
+def test_candidate_order_picks_the_best_match_or_the_highest_top(order, y_expected):
+    cfg = PickConfig(reobserve=False, max_estimates=1, grasps_per_estimate=1, candidate_order=order)
+    outcome, _ = _run(estimator=TwoCandidates(), config=cfg)
+    assert outcome.success, outcome.message
+    # The grasp closes on the chosen candidate: its tcp within the box's 3 cm half width of that centre.
+    assert outcome.grasp.T_base_tcp[1, 3] == pytest.approx(y_expected, abs=0.03)
+
+
+def test_unknown_candidate_order_is_refused_with_the_choices():
+    with pytest.raises(InvalidInputError, match="top_first, score"):
+        PickConfig(candidate_order="tallest")
+
+
+class _JumpyRobot:
+    """The UR5e whose IK adds 0.5 rad to wrist 1 below z = 0.05 m (a branch flip on the way down)."""
+
+    def ik(self, T, q_seed=None, frame="tcp"):
+        result = ROBOT.ik(T, q_seed=q_seed, frame=frame)
+        if result.success and T[2, 3] < 0.05:
+            q = np.array(result.q)
+            q[3] += 0.5
+            return SimpleNamespace(success=True, q=q)
+        return result
+
+
+def test_a_grasp_whose_approach_line_flips_a_wrist_is_not_continuous():
+    outcome, _ = _run()
+    grasp = outcome.grasp  # a top-down grasp on the box (tcp at z ~ 0.03 m), approached from 10 cm above
+    assert PickAndPlace._lines_continuous(SimpleNamespace(robot=ROBOT), grasp)
+    # The same lines with IK that jumps 0.5 rad (> the 0.2 rad the check allows between 5 mm steps) below
+    # 5 cm: the approach crosses z = 0.05 m, so it is refused.
+    assert not PickAndPlace._lines_continuous(SimpleNamespace(robot=_JumpyRobot()), grasp)
 
 
 def test_reasons_are_the_issue_list_plus_not_understood():
