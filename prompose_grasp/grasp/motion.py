@@ -18,6 +18,7 @@ may touch it only at the grasp: the approach checks the fingers against it with 
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from dataclasses import dataclass
@@ -27,12 +28,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from prompose_grasp.errors import InvalidInputError, NoFeasibleMotion
+from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.geometry.se3 import invert_T
-from prompose_grasp.grasp.batch_ik import ik_nearest_batch
+from prompose_grasp.grasp.batch_ik import ik_nearest_batch, link_frames_batch
 from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry
-from prompose_grasp.grasp.place import PlacePose
+from prompose_grasp.grasp.place import PlacePose, PlaceTarget
 from prompose_grasp.grasp.planner import _gripper
-from prompose_grasp.grasp.scene import CollisionScene, Hit
+from prompose_grasp.grasp.scene import CollisionScene, Hit, _segment_box_distance
 from prompose_grasp.grasp.types import Grasp, ObjectModel
 from prompose_grasp.robot.interfaces import JointTrajectory
 from prompose_grasp.robot.model import RobotModel
@@ -44,8 +46,11 @@ __all__ = [
     "PickPlaceMotion",
     "check_path",
     "free_move",
+    "held_acceleration",
+    "place_support_fixture",
     "plan_pick_place",
     "reach_bounds",
+    "timed_held_trajectory",
     "timed_trajectory",
 ]
 
@@ -61,6 +66,13 @@ class MotionConfig:
         contact_margin_m: the held object's box is shrunk by this (it rests on its support at the start) [m].
         speed_scale: fraction of the arm's joint speed limits used to time the segments.
         max_accel_rad_s2: joint acceleration used to time the segments [rad/s^2].
+        suction_held_accel_m_s2: with a suction cup, the segments that carry the object (lift, transfer,
+            descend) are slowed down uniformly until the acceleration of the held box's centre stays below
+            this [m/s^2]. A vacuum cup holds sideways by lip friction only: at its rated payload
+            (`SuctionCupGeometry.max_payload_kg`, safety factor 2 on the pull, F = 2 m g) the lip holds
+            m a_h <= mu (F - m (g + a_v)), i.e. an acceleration of mu g / sqrt(1 + mu^2) = 6.1 m/s^2 (mu 0.8)
+            in the worst direction; this is half of that (the servos overshoot the planned profile). The
+            joint timing alone gave the held carton 7 m/s^2 and more (docs/benchmarks.md, depalletising).
     """
 
     resolution_m: float = 0.005
@@ -69,9 +81,11 @@ class MotionConfig:
     contact_margin_m: float = 0.003
     speed_scale: float = 0.5
     max_accel_rad_s2: float = 2.0
+    suction_held_accel_m_s2: float = 3.0
 
     def __post_init__(self) -> None:
-        for name in ("resolution_m", "line_step_m", "speed_scale", "max_accel_rad_s2"):
+        names = ("resolution_m", "line_step_m", "speed_scale", "max_accel_rad_s2", "suction_held_accel_m_s2")
+        for name in names:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise InvalidInputError(f"MotionConfig.{name} must be finite and > 0, got {v!r}")
@@ -191,12 +205,59 @@ def check_path(
     first_out = int(out[0]) if out.size else len(S)
     # All samples up to the first one outside the limits in one batched query; the first hit along the path.
     hits = scene.arm_hits_batch(robot, S[:first_out], include_target=include_target, extra=mover.parts)
+    if held is not None and T_tcp_obj is not None:
+        own = _held_arm_hits(robot, S[:first_out], gripper.T_flange_tcp @ T_tcp_obj, held, cfg)
+        hits = [h if h is not None else o for h, o in zip(hits, own)]
     for hit in hits:
         if hit is not None:
             return S, hit
     if out.size:
         return S, Hit("limits", f"joint limits at {np.round(S[first_out], 3).tolist()}")
     return S, None
+
+
+def _arm_segments(robot, frames: np.ndarray) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
+    """The link capsules at N configurations (link frames (N, 8, 4, 4)): (link names (C,), ends p0, p1
+    (N, C, 3) in `base` [m], radii (C,))."""
+    names, p0, p1, radius = [], [], [], []
+    for i, link in enumerate(robot.description.links):
+        for cap in link.capsules:
+            F = frames[:, i]
+            names.append(link.name)
+            p0.append(F[:, :3, :3] @ np.asarray(cap.p0, dtype=np.float64) + F[:, :3, 3])
+            p1.append(F[:, :3, :3] @ np.asarray(cap.p1, dtype=np.float64) + F[:, :3, 3])
+            radius.append(float(cap.radius_m))
+    return names, np.stack(p0, axis=1), np.stack(p1, axis=1), np.array(radius)
+
+
+def _held_arm_hits(
+    robot, Q: np.ndarray, T_flange_obj: np.ndarray, held: ObjectModel, cfg: MotionConfig
+) -> list[Hit | None]:
+    """The held box (shrunk by `contact_margin_m`) against the arm's own link capsules at each configuration
+    of Q (N, 6): a carried carton swung into the upper arm is knocked off the cup (the scene check sees only
+    the scene). Links already touching the box at Q[0] (the grasp: the capsules are a conservative envelope,
+    and whatever touches there rides along rigidly, e.g. the wrist) are not counted."""
+    n = len(Q)
+    if n == 0:
+        return []
+    frames = link_frames_batch(robot.spec, Q)
+    names, p0, p1, radius = _arm_segments(robot, frames)
+    T_obj = frames[:, 7] @ np.asarray(T_flange_obj, dtype=np.float64)  # (N, 4, 4)
+    half = np.maximum(held.pose.size / 2.0 - cfg.contact_margin_m, 1e-4)
+    C = len(names)
+    d = _segment_box_distance(
+        p0.reshape(-1, 3),
+        p1.reshape(-1, 3),
+        np.repeat(T_obj[:, :3, 3], C, axis=0),
+        np.repeat(T_obj[:, :3, :3], C, axis=0),
+        np.tile(half, (n * C, 1)),
+    ).reshape(n, C)
+    touching = d < radius[None, :]
+    touching[:, touching[0]] = False
+    out: list[Hit | None] = [None] * n
+    for i in np.flatnonzero(np.any(touching, axis=1)):
+        out[i] = Hit("arm", f"held object against the arm's {names[int(np.argmax(touching[i]))]}")
+    return out
 
 
 def _line(robot, T_from, T_to, q_start, T_tcp_flange, step_m) -> np.ndarray | None:
@@ -216,6 +277,41 @@ def _line(robot, T_from, T_to, q_start, T_tcp_flange, step_m) -> np.ndarray | No
     return np.array(Q)
 
 
+def held_acceleration(
+    robot: RobotModel, traj: JointTrajectory, T_flange_point: np.ndarray, q_start: ArrayLike
+) -> np.ndarray:
+    """(M,) acceleration [m/s^2] at each sample of a trajectory (sampled at a constant period, starting at
+    rest at `q_start` (6,) one period before its first sample, ending at rest) of a point fixed to the flange
+    (`T_flange_point` (4, 4), e.g. a held box's centre), by central differences of the point's path."""
+    t = np.asarray(traj.t_s, dtype=np.float64)
+    Q = np.asarray(traj.q, dtype=np.float64)
+    dt = float(t[1] - t[0]) if len(t) > 1 else float(t[0])
+    q0 = np.asarray(q_start, dtype=np.float64)[None]
+    F = link_frames_batch(robot.spec, np.vstack([q0, q0, Q, Q[-1:]]))[:, 7]
+    p = (F @ np.asarray(T_flange_point, dtype=np.float64))[:, :3, 3]
+    a = (p[2:] - 2.0 * p[1:-1] + p[:-2]) / dt**2
+    return np.linalg.norm(a, axis=1)
+
+
+def timed_held_trajectory(
+    robot: RobotModel, W: np.ndarray, cfg: MotionConfig, T_flange_point: np.ndarray, max_accel_m_s2: float
+) -> JointTrajectory:
+    """`timed_trajectory`, slowed down uniformly (speeds / k, accelerations / k^2: the same path, every
+    acceleration, tangential and centripetal, / k^2) until the acceleration of the point `T_flange_point`
+    (4, 4) in the flange frame stays below `max_accel_m_s2` [m/s^2]."""
+    traj = timed_trajectory(robot, W, cfg)
+    for _ in range(4):  # the sampled profile scales as 1/k^2 only up to the control period's rounding
+        peak = float(np.max(held_acceleration(robot, traj, T_flange_point, W[0]), initial=0.0))
+        if peak <= max_accel_m_s2:
+            return traj
+        k = math.sqrt(peak / max_accel_m_s2) * 1.02  # 2 %: a little under the cap after resampling
+        cfg = dataclasses.replace(
+            cfg, speed_scale=cfg.speed_scale / k, max_accel_rad_s2=cfg.max_accel_rad_s2 / k**2
+        )
+        traj = timed_trajectory(robot, W, cfg)
+    return traj
+
+
 def timed_trajectory(robot: RobotModel, W: np.ndarray, cfg: MotionConfig) -> JointTrajectory:
     """Joint waypoints W (K, 6) -> one trajectory of synchronised, velocity-limited joint segments."""
     vmax = robot.max_joint_speed * cfg.speed_scale
@@ -228,6 +324,40 @@ def timed_trajectory(robot: RobotModel, W: np.ndarray, cfg: MotionConfig) -> Joi
     if not t_all:
         return JointTrajectory(t_s=np.array([0.002]), q=W[-1:])
     return JointTrajectory(t_s=np.concatenate(t_all), q=np.vstack(q_all))
+
+
+#: How far a surface place target's body reaches beyond its usable surface [m]: a conveyor's frame and side
+#: guides stand up to 2 cm outside its belt (sim/world.py `add_conveyor`); a little more for a real one.
+PLACE_RIM_M = 0.04
+#: How deep below its surface a surface place target's body is taken to be [m] (a conveyor's frame and
+#: legs, a table's top and legs: solid enough that nothing carried passes under the surface nearby).
+PLACE_BODY_DEPTH_M = 0.5
+#: A surface whose footprint comes this close to the base origin is one the arm stands on or beside [m]: the
+#: base link's radius (UR16e 0.09 m) and a margin.
+_BASE_CLEARANCE_M = 0.15
+
+
+def place_support_fixture(
+    target: PlaceTarget, rim_m: float = PLACE_RIM_M, depth_m: float = PLACE_BODY_DEPTH_M
+) -> ObjectModel | None:
+    """The body of a surface place target (a conveyor, a table) below its surface, as a fixture box for the
+    collision scene of the moves that carry the object: its footprint grown by `rim_m`, from the surface
+    down `depth_m`. The camera that found the object may not see the place at all (the depalletising cell's
+    overhead camera does not see the conveyor); without it a transfer's joint line that sags on its way down
+    to the pre-place swept the carried carton through the conveyor's side guide. None for a bin (its walls
+    are part of the target), a pallet (its deck is a layer below anything carried onto it), and a surface the
+    arm stands on or beside (its base origin within the footprint grown by `_BASE_CLEARANCE_M`: a table the
+    arm is mounted on, which the support plane already stands for)."""
+    if target.kind != "surface":
+        return None
+    T = np.asarray(target.T_base_surface, dtype=np.float64)
+    base_local = T[:3, :3].T @ -T[:3, 3]  # the base origin in the surface frame
+    if np.all(np.abs(base_local[:2]) <= target.half_extents_xy_m + rim_m + _BASE_CLEARANCE_M):
+        return None
+    size = np.array([*(2.0 * (target.half_extents_xy_m + rim_m)), depth_m])
+    # The box frame: the surface's axes; its centre half the depth below the surface.
+    centre = T[:3, 3] - 0.5 * depth_m * T[:3, 2]
+    return ObjectModel("place support", Pose9D(T[:3, :3], centre, size), kind="fixture")
 
 
 def plan_pick_place(
@@ -274,7 +404,12 @@ def plan_pick_place(
         S, hit = check_path(robot, scene, W, grip, opening, include_target, held, T_tcp_obj, cfg)
         if hit is not None:
             raise NoFeasibleMotion(name, f"{hit.reason}: {hit.name}")
-        segments.append(MotionSegment(name, kind, W, S, timed_trajectory(robot, W, cfg), holding, opening))
+        if holding and is_suction:  # the cup holds by lip friction: the carried box's centre is kept gentle
+            T_flange_obj = grip.T_flange_tcp @ T_tcp_obj
+            traj = timed_held_trajectory(robot, W, cfg, T_flange_obj, cfg.suction_held_accel_m_s2)
+        else:
+            traj = timed_trajectory(robot, W, cfg)
+        segments.append(MotionSegment(name, kind, W, S, traj, holding, opening))
         return W[-1]
 
     # Approach: from the pre-grasp down the line to the grasp (walked backwards from the grasp's q, so the
