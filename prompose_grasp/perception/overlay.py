@@ -23,7 +23,7 @@ def distinct_colors(n: int) -> list[tuple[int, int, int]]:
     """`n` saturated RGB colours with hues spread by the golden angle (neighbours in a list differ)."""
     hues = (np.arange(n) * 47) % 180  # OpenCV hue is 0..179; 47 steps visit all hues before repeating
     hsv = np.stack([hues, np.full(n, 220), np.full(n, 255)], axis=1).astype(np.uint8)[None]
-    return [tuple(int(c) for c in rgb) for rgb in cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0]]
+    return [(int(r), int(g), int(b)) for r, g, b in cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0]]
 
 
 def colorize_depth(

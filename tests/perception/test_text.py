@@ -60,6 +60,37 @@ def test_minilm_token_features(minilm):
     np.testing.assert_allclose(mean / np.linalg.norm(mean), minilm.encode("small red mug")[0], atol=1e-5)
 
 
+def test_minilm_cache_gives_the_model_rows_and_copies(minilm):
+    import torch
+
+    threads = torch.get_num_threads()
+    texts = ["a cache test phrase", "another cache test phrase"]
+    assert not any(t in minilm._cache for t in texts)  # fresh texts: computed by the model
+    first = minilm.encode(texts)
+    assert torch.get_num_threads() == threads  # the single-thread section restores the setting
+    # the model itself, uncached: the same rows (1e-5: batched float32 rounding, see the test above)
+    direct = minilm._model.encode(texts, convert_to_numpy=True, normalize_embeddings=True)
+    np.testing.assert_allclose(first, direct, atol=1e-5)
+    # cached: bit-identical whatever the batch, in the caller's order, with duplicates
+    again = minilm.encode([texts[1], "mug", texts[0], texts[1]])
+    np.testing.assert_array_equal(again[[2, 0, 3]], first[[0, 1, 1]])
+    again[:] = 0.0  # the caller owns its array: the cache is not written through it
+    np.testing.assert_array_equal(minilm.encode(texts), first)
+
+
+def test_minilm_cache_keeps_the_most_recent_texts(minilm):
+    size = minilm.cache_size
+    try:
+        minilm.cache_size = 2
+        minilm.encode(["cache lru one", "cache lru two", "cache lru three"])
+        assert len(minilm._cache) == 2 and "cache lru one" not in minilm._cache
+        minilm.encode("cache lru two")  # used again: now the most recent
+        minilm.encode("cache lru four")
+        assert list(minilm._cache) == ["cache lru two", "cache lru four"]
+    finally:
+        minilm.cache_size = size
+
+
 @pytest.mark.parametrize("bad", ["", "   ", [], ["mug", " "], [3], b"mug", None])
 def test_minilm_rejects_empty_or_non_text(minilm, bad):
     with pytest.raises(InvalidInputError):

@@ -261,7 +261,17 @@ class Grounder:
             depth_m: (H, W) float32 depth [m]; 0 or NaN where there is no reading.
             intrinsics: its camera.
         """
-        return self._support_plane(depth_to_point_map(depth_m, intrinsics))[0]
+        # Only the plane's pixel grid is back-projected (1/16 of the pixels at stride 4): the grid's own
+        # camera has the focal lengths and the principal point divided by the stride, so its points are
+        # those of the full point map's grid (as `ground` samples them).
+        s = self.config.plane_stride_px
+        if s == 1:
+            return self._support_plane(depth_to_point_map(depth_m, intrinsics))[0]
+        K = intrinsics
+        h, w = -(-K.height // s), -(-K.width // s)
+        grid = CameraIntrinsics(K.fx / s, K.fy / s, K.cx / s, K.cy / s, width=w, height=h)
+        Ps = depth_to_point_map(depth_m[::s, ::s], grid).reshape(-1, 3)
+        return fit_support_plane(Ps[np.isfinite(Ps[:, 2])], self.config)
 
     def _support_plane(self, points_map: np.ndarray) -> tuple[SupportPlane | None, np.ndarray]:
         """The plane fitted on every `plane_stride_px`-th point of an (H, W, 3) point map, and the points."""
