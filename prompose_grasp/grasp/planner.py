@@ -37,7 +37,13 @@ from prompose_grasp.geometry.se3 import invert_T
 from prompose_grasp.grasp.batch_ik import ik_nearest_batch
 from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry, get_gripper
 from prompose_grasp.grasp.scene import CollisionScene
-from prompose_grasp.grasp.synthesis import Candidates, antipodal_grasps, box_grasps, suction_grasps
+from prompose_grasp.grasp.synthesis import (
+    Candidates,
+    antipodal_grasps,
+    box_grasps,
+    rim_grasps,
+    suction_grasps,
+)
 from prompose_grasp.grasp.types import Grasp, GraspConfig, GraspPlan, ObjectModel, Plane
 from prompose_grasp.robot.kinematics import fk_batch
 from prompose_grasp.robot.model import RobotModel
@@ -71,7 +77,11 @@ def generate_candidates(
     """All candidates of the gripper's kind, capped at `config.max_candidates` (unrejected, best first)."""
     if isinstance(gripper, ParallelJawGeometry):
         cands = Candidates.concat(
-            [box_grasps(target, gripper, config, support), antipodal_grasps(target, gripper, config, support)]
+            [
+                box_grasps(target, gripper, config, support),
+                antipodal_grasps(target, gripper, config, support),
+                rim_grasps(target, gripper, config, support),
+            ]
         )
     else:
         cands = suction_grasps(target, gripper, config, support)

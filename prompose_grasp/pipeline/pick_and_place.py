@@ -24,9 +24,17 @@ Every expected failure ends the run with a typed reason (`PickOutcome.reason`) i
 | timeout | `PickConfig.timeout_s` passed (checked between stages; a running move is never cut) |
 
 Which object: the estimator's candidates for the prompt whose grounding score is within `candidate_ratio` of
-the best are all "the object" (identical cartons on a pallet); they are tried from the highest top down (what
-lies on top of a pile first), skipping any already at the place target, and the first with a feasible grasp
-is picked. A plural command ("move the cartons to the conveyor") repeats pick-and-place until no such object
+the best are all "the object" (identical cartons on a pallet); with `candidate_order="top_first"` (default)
+they are tried from the highest top down (what lies on top of a pile first), with `"score"` (a tabletop of
+different things, where a 90 % candidate is often another object) best match first; any already at the place
+target is skipped, and the first with a feasible grasp is picked.
+
+Verification: the jaws must have stopped on something (the gripper's own detection) no narrower than
+`min_jaw_width_m`, or half the planned contact width for a thinner part (a cup's 2 mm wall); after a pick the
+camera must no longer see the object where it stood. A grasp whose approach or lift line would flip a wrist
+on the way (IK every 5 mm, seeded with the last) is skipped before anything moves.
+
+A plural command ("move the cartons to the conveyor") repeats pick-and-place until no such object
 is left (or `max_objects`). A place target that names no fixture of the cell ("in the white bowl", "on the tea
 box") is grounded in the image like the object: the named object's estimated box becomes a bin (into) or a
 surface (onto).
@@ -105,7 +113,9 @@ class PickConfig:
         min_jaw_width_m: jaws closed narrower than this held nothing [m] (the 2F-85 class stops at 0); for a
             grasp planned on a thinner part (a cup's wall) half its planned width, at least 1 mm.
         moved_min_m: on re-observation the object counts as picked when its estimate moved more than this
-            (or is no longer seen where it stood) [m]; half the default 10 cm lift.
+            (or is no longer seen where it stood) [m]. A third of the 10 cm lift: a bowl held by its rim
+            hangs tilted and its estimate rose only 49-50 mm (seed 102, dropped as "still where it stood"
+            at 5 cm), while an unmoved object's re-estimate moves ~1-2 cm (noise, the gripper above it).
         max_scene_points: observed points handed to the collision scene (evenly thinned) [-].
         reobserve: re-observe after the lift to confirm the pick.
         open_margin_m: the jaws open this much wider than the object plus the planner's clearance before the
@@ -146,7 +156,7 @@ class PickConfig:
     linear_accel_m_s2: float = 1.0
     grip_force_n: float = 60.0
     min_jaw_width_m: float = 0.004
-    moved_min_m: float = 0.05
+    moved_min_m: float = 0.035
     max_scene_points: int = 40000
     reobserve: bool = True
     open_margin_m: float = 0.01

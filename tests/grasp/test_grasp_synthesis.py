@@ -21,6 +21,7 @@ from prompose_grasp.grasp import (
     box_grasps,
     suction_grasps,
 )
+from prompose_grasp.grasp.synthesis import rim_grasps
 
 R_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # object +y -> base +z
 JAW = ParallelJawGeometry()
@@ -108,6 +109,49 @@ def test_antipodal_pairs_in_friction_cone_and_family_region(family, r_in, r_out)
         if family == "bowl":  # by the rim: both contacts in the top band
             assert min(p1[2], p2[2]) >= height - max(0.15 * height, 0.015) - 1e-9
     assert labels <= ({"rim"} if family == "bowl" else {"rim", "body"})
+
+
+@pytest.mark.parametrize(
+    ("family", "r_in", "r_out"), [("bowl", 0.07, 0.08), ("mug", 0.03, 0.038), ("cup", 0.038, 0.04)]
+)
+def test_rim_grasps_straddle_the_wall_below_the_top(family, r_in, r_out):
+    height = 0.09
+    centre = np.array([-0.5, 0.1, height / 2])
+    target = _annulus(r_in, r_out, height, family, centre)
+    c = rim_grasps(target, JAW, CONFIG, Plane.horizontal(0.0))
+    assert len(c) == 16 * 3 * 3 * 2 * 2  # angles x depths x tilts x openings x flips
+    wall = r_out - r_in
+    openings = set()
+    for k in range(len(c)):
+        T = c.T_base_tcp[k]
+        p, y, a = T[:3, 3], T[:3, 1], T[:3, 2]
+        d = p - centre
+        radial = np.array([d[0], d[1], 0.0]) / math.hypot(d[0], d[1])
+        # The closing line is horizontal and radial (rounding only: 1e-9).
+        assert abs(y[2]) < 1e-9 and abs(abs(y @ radial) - 1.0) < 1e-9
+        # The pads' centre is on the middle of the wall: the rim's 22.5 deg angles fall on vertices of the
+        # 64-gon, so the radius is exact (1e-9: rounding).
+        assert math.hypot(d[0], d[1]) == pytest.approx((r_in + r_out) / 2.0, abs=1e-9)
+        # The pad overlaps the wall but for at most 4 mm: its centre at least half a pad less 4 mm below the
+        # top, and the deepest half a pad plus 1 cm.
+        assert JAW.pad_size_m[2] / 2 - 0.004 - 1e-12 <= height - p[2] <= JAW.pad_size_m[2] / 2 + 0.01 + 1e-12
+        # Top-down or tilted 20 deg about the closing line (1e-9: rounding).
+        assert a @ y == pytest.approx(0.0, abs=1e-9)
+        assert math.degrees(math.acos(min(1.0, -a[2]))) <= 20.0 + 1e-6
+        # The contacts are the wall's two faces, and the jaws open wider than the wall.
+        radii = sorted(math.hypot(*(q - centre)[:2]) for q in c.contacts[k])
+        np.testing.assert_allclose(radii, [r_in, r_out], atol=1e-9)
+        assert wall < c.opening_m[k] <= JAW.stroke_m + 1e-12 and c.width_m[k] == pytest.approx(wall)
+        openings.add(round(float(c.opening_m[k]), 9))
+    # Two openings: the wall plus the planner's clearance, and plus 25 mm each side (robust to the wall
+    # standing that far from the estimate); the wide one ranks first.
+    assert openings == {round(wall + 2 * CONFIG.clearance_m, 9), round(wall + 0.05, 9)}
+    assert c.opening_m[int(np.argmax(c.quality))] == pytest.approx(wall + 0.05)
+    # A container lying on its side has no rim grasps, nor has a bottle.
+    lying = ObjectModel(family, Pose9D(np.eye(3), centre, target.pose.size), family=family)
+    assert len(rim_grasps(lying, JAW, CONFIG, Plane.horizontal(0.0))) == 0
+    bottle = ObjectModel("bottle", target.pose, mesh=target.mesh, family="bottle")
+    assert len(rim_grasps(bottle, JAW, CONFIG, Plane.horizontal(0.0))) == 0
 
 
 def test_suction_on_faces_where_the_cup_fits_and_flat():
