@@ -127,6 +127,9 @@ class PickConfig:
             layer of a stack of like objects, a pallet of cartons) or "score" (the best match first: a
             tabletop of different things, where a candidate at 90 % of the best score is often another
             object, e.g. a tea box's 0.76 next to its 0.84 on a bottle and a can behind it).
+        candidate_max_size_ratio: or None; else candidates whose box differs from the best match's by more
+            than this factor in any (sorted) extent are tried after the alike ones: another kind of thing
+            (a 0.5 m "tea box" over a bottle and a can, next to the 12 cm tea box that scored best).
         max_objects: objects moved by one plural command at most.
         lift_clearance_m: the lift after a grasp rises at least the object's estimated height plus this, so
             the held object clears what stood beside it (cartons in a layer) [m].
@@ -163,6 +166,7 @@ class PickConfig:
     candidates: int = 4
     candidate_ratio: float = 0.9
     candidate_order: str = "top_first"
+    candidate_max_size_ratio: float | None = None
     max_objects: int = 12
     lift_clearance_m: float = 0.03
     max_lift_m: float = 0.35
@@ -205,6 +209,9 @@ class PickConfig:
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
                 raise InvalidInputError(f"PickConfig.{name} must be finite and > 0, got {v}")
+        r = self.candidate_max_size_ratio
+        if r is not None and not (math.isfinite(float(r)) and float(r) >= 1.0):
+            raise InvalidInputError(f"PickConfig.candidate_max_size_ratio must be None or >= 1, got {r}")
         if self.candidate_order not in _CANDIDATE_ORDERS:
             raise InvalidInputError(
                 f"PickConfig.candidate_order must be one of {', '.join(_CANDIDATE_ORDERS)}, "
@@ -510,6 +517,15 @@ class PickAndPlace:
             observations.sort(key=lambda o: -_top_height(o.target, o.support))
         else:  # "score": the best match first (candidates come best first)
             observations.sort(key=lambda o: -_score(o))
+        ratio = self.config.candidate_max_size_ratio
+        if ratio is not None:
+            # Candidates unlike the best match in size (a box 6x taller than the tea box it scored next to)
+            # are another thing: tried after the alike ones, each group in the order above.
+            ref = np.sort(max(observations, key=_score).target.pose.size)
+            alike = [_size_ratio(o.target.pose.size, ref) <= ratio for o in observations]
+            observations = [o for o, a in zip(observations, alike) if a] + [
+                o for o, a in zip(observations, alike) if not a
+            ]
         logger.info(
             "candidates for %r: %s",
             cmd.object_prompt,
@@ -640,6 +656,11 @@ class PickAndPlace:
         self._emit("plan", "planning grasps", 0.3)
         plan, scene, obs, plan_failure = None, None, observations[0], None
         for candidate in observations:  # the first candidate with a feasible grasp
+            if self._no_room(candidate, place_target):
+                plan_failure = plan_failure or _Abort(
+                    "no_feasible_grasp", "no feasible place pose (rejected: no_room: the estimate is larger)"
+                )
+                continue
             try:
                 plan, scene = self._plan(candidate, q_now, timings)
             except _Abort as exc:
@@ -706,6 +727,19 @@ class PickAndPlace:
                 raise _Abort("ik_failed", f"all {len(grasps)} grasps' approach or lift lines flip a wrist")
             raise _Abort("no_feasible_grasp", "the plan held no grasp")
         raise failures[-1]
+
+    def _no_room(self, obs: _Observation, target: PlaceTarget | None) -> bool:
+        """The candidate's carried box is wider than a surface or bin place target in both orientations (the
+        footprint `plan_place` lays out): no place can take it. A stack's estimate that merged two cartons
+        (0.75 m across, against the 0.5 m belt) was grasped, then refused as "no room", once per grasp and
+        round, while the single cartons beside it were never tried."""
+        if target is None or target.kind == "pallet":
+            return False
+        carried = self._carried(obs)
+        R = np.asarray(target.T_base_surface, dtype=np.float64)[:3, :3].T @ carried.pose.R
+        half = (np.abs(R) @ (np.asarray(carried.pose.size, dtype=np.float64) / 2.0))[:2]
+        room = np.asarray(target.half_extents_xy_m, dtype=np.float64)
+        return bool(np.any(half > room) and np.any(half[::-1] > room))
 
     def _wrist_look(
         self,
@@ -1134,6 +1168,13 @@ _LINE_JUMP_RAD = 0.2
 _MAX_DEEPEN_M = 0.03
 #: Observed points this close to a place surface are the surface itself [m] (sensor noise at 1-2 m).
 _SURFACE_BAND_M = 0.02
+
+
+def _size_ratio(size: np.ndarray, ref_sorted: np.ndarray) -> float:
+    """The largest factor between a box's sorted extents and the reference's (1 for the same size)."""
+    a = np.maximum(np.sort(np.asarray(size, dtype=np.float64)), 1e-6)
+    b = np.maximum(np.asarray(ref_sorted, dtype=np.float64), 1e-6)
+    return float(np.max(np.maximum(a / b, b / a)))
 
 
 def _score(obs: _Observation) -> float:

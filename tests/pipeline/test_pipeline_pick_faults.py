@@ -243,6 +243,28 @@ def test_candidate_order_picks_the_best_match_or_the_highest_top(order, y_expect
     assert outcome.grasp.T_base_tcp[1, 3] == pytest.approx(y_expected, abs=0.03)
 
 
+class TallOther(OracleEstimator):
+    """The best match (score 0.84, a 6 cm box) and, 90 % as good, a box 50 cm tall (another thing)."""
+
+    def estimate_all(self, frame, prompt, max_objects=None):
+        best = self.estimate(frame, prompt)
+        best.score = 0.84
+        other = OracleEstimator(t_base=(-0.45, -0.15, 0.25), size=(0.05, 0.5, 0.06)).estimate(frame, prompt)
+        other.score = 0.78
+        return [best, other]
+
+
+def test_a_candidate_unlike_the_best_in_size_comes_after_the_alike_ones():
+    # Highest top first would try the 50 cm box (top at 0.5 m); with a size ratio of 2 it is unlike the 6 cm
+    # best match (8x taller) and goes last: the grasp closes on the best match (within its 3 cm half width).
+    cfg = PickConfig(reobserve=False, max_estimates=1, grasps_per_estimate=1, candidate_max_size_ratio=2.0)
+    outcome, _ = _run(estimator=TallOther(), config=cfg)
+    assert outcome.success, outcome.message
+    assert outcome.grasp.T_base_tcp[1, 3] == pytest.approx(0.15, abs=0.03)
+    with pytest.raises(InvalidInputError, match="candidate_max_size_ratio"):
+        PickConfig(candidate_max_size_ratio=0.5)
+
+
 def test_unknown_candidate_order_is_refused_with_the_choices():
     with pytest.raises(InvalidInputError, match="top_first, score"):
         PickConfig(candidate_order="tallest")
