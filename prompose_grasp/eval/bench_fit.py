@@ -11,7 +11,9 @@ named so: it isolates the fit from grounding):
 - support plane: the library's `perception.grounding.plane.fit_support_plane` (RANSAC) on every 4th pixel of
   the depth image (no ground truth; the table is the largest plane); the same plane for every method;
 - prior: `PriorLibrary().generate(prompt, points, up)` from the object's prompt;
-- ours (cold): `fit_pose(points, prior, support_plane_cam=plane)`;
+- ours (cold): `fit_pose(points, prior, support_plane_cam=plane, scene=SceneView(depth, intrinsics, mask))`
+  (the depth image tells the fit which prior points the camera could not have seen: off the image, behind
+  an occluder);
 - ours (warm): `fit_pose(..., init=<this object's fit in the previous frame>)` (timing, and tracking-only
   accuracy: frame 0 cold, later frames warm only);
 - baseline `obb`: `trimesh.bounds.oriented_bounds` of the [p5, p95] depth-clipped points; the OBB axis
@@ -49,7 +51,7 @@ from prompose_grasp.geometry.pointcloud import back_project
 from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.perception.dataset import read_split, scene_frames
 from prompose_grasp.perception.estimator import plane_vector
-from prompose_grasp.perception.fit.core import FitConfig, fit_pose
+from prompose_grasp.perception.fit.core import FitConfig, SceneView, fit_pose
 from prompose_grasp.perception.grounding.plane import fit_support_plane
 from prompose_grasp.perception.grounding.types import GroundingConfig, SupportPlane
 
@@ -74,20 +76,21 @@ def support_plane(depth_m: np.ndarray, intr: CameraIntrinsics) -> SupportPlane |
 # Ground-truth-side helpers (benchmark only)
 
 
-def _handle_visible(obj: dict[str, Any], points_cam: np.ndarray) -> int:
-    """1 when the mug's handle is seen (dataset meta `handle_visible`, from a geom-level segmentation render;
-    datasets without it: >= 20 masked points in the handle's part of the ground-truth box), 1 for non-mugs."""
+def _handle_visible(obj: dict[str, Any], points_cam: np.ndarray) -> bool:
+    """True when the mug's handle is seen (dataset meta `handle_visible`, from a geom-level segmentation
+    render; datasets without it: >= 20 masked points in the handle's part of the ground-truth box), True for
+    non-mugs."""
     if obj["category"] != "mug":
-        return 1
+        return True
     if "handle_visible" in obj:
-        return int(bool(obj["handle_visible"]))
+        return bool(obj["handle_visible"])
     gt = Pose9D(obj["R"], obj["t"], obj["size"])
     local = gt.points_to_object(points_cam)
     params = obj.get("mesh", {}).get("params", {})
     reach = float(params.get("handle_reach_m", 0.03))
     x_max = 0.5 * float(gt.size[0])
     in_handle = local[:, 0] > x_max - 0.6 * reach
-    return int(np.count_nonzero(in_handle) >= _HANDLE_MIN_PIXELS)
+    return bool(np.count_nonzero(in_handle) >= _HANDLE_MIN_PIXELS)
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -128,7 +131,7 @@ def run(
             times["plane"].append(time.perf_counter() - t0)
             plane = plane_vector(support)
             up = None if support is None else support.normal_cam
-            gts: list[tuple[int, Pose9D, int]] = []
+            gts: list[tuple[int, Pose9D, bool]] = []
             preds: dict[str, list[tuple[int, Pose9D]]] = {m: [] for m in methods}
             for obj in (o.meta for o in sf.ground_truth_objects):
                 cat = obj["category"]
@@ -139,8 +142,9 @@ def run(
                 gt = Pose9D(obj["R"], obj["t"], obj["size"])
                 if up is not None:
                     plane_err_deg.append(math.degrees(math.acos(min(1.0, abs(float(gt.R[:, 1] @ up))))))
-                pts = back_project(depth, intr, mask == obj["id"])  # oracle mask
-                gts.append((cls, gt, _handle_visible(obj, pts) if len(pts) else 1))
+                obj_mask = mask == obj["id"]  # oracle mask
+                pts = back_project(depth, intr, obj_mask)
+                gts.append((cls, gt, _handle_visible(obj, pts) if len(pts) else True))
                 if len(pts) < _MIN_POINTS:
                     continue
                 prompt = obj["prompt"]
@@ -150,17 +154,18 @@ def run(
                     prior = library.generate(prompt, observation_points=pts, up=up)
                     priors[prompt] = prior
                 times["prior"].append(time.perf_counter() - t0)
-                res = fit_pose(pts, prior, cfg, support_plane_cam=plane)
+                view = SceneView(depth, intr, obj_mask)
+                res = fit_pose(pts, prior, cfg, support_plane_cam=plane, scene=view)
                 times["ours_cold"].append(res.time_s)
                 preds["ours"].append((cls, res.pose))
                 iid = int(obj["id"])
                 if iid in prev:
                     p_pose, p_prior = prev[iid]
-                    warm = fit_pose(pts, p_prior, cfg, support_plane_cam=plane, init=p_pose)
+                    warm = fit_pose(pts, p_prior, cfg, support_plane_cam=plane, init=p_pose, scene=view)
                     times["ours_warm"].append(warm.time_s)
                 if iid in track:
                     t_pose, t_prior = track[iid]
-                    tr = fit_pose(pts, t_prior, cfg, support_plane_cam=plane, init=t_pose)
+                    tr = fit_pose(pts, t_prior, cfg, support_plane_cam=plane, init=t_pose, scene=view)
                     track[iid] = (tr.pose, t_prior)
                 else:
                     track[iid] = (res.pose, res.prior or prior)
@@ -170,14 +175,14 @@ def run(
                 preds["obb"].append((cls, obb_baseline(pts, support, extend_to_plane=False)))
                 times["obb"].append(time.perf_counter() - t0)
                 preds["obb_plane"].append((cls, obb_baseline(pts, support)))
-                ysym_obj = obj["symmetry"] == "y_continuous" or (cat == "mug" and gts[-1][2] == 0)
+                ysym_obj = obj["symmetry"] == "y_continuous" or (cat == "mug" and not gts[-1][2])
                 rec = {
                     "scene": scene,
                     "frame": sf.index,
                     "id": iid,
                     "category": cat,
                     "points": len(pts),
-                    "handle_visible": gts[-1][2],
+                    "handle_visible": int(gts[-1][2]),
                     "ours_size_ratio": (res.pose.size / gt.size).tolist(),
                     "ours_hypothesis": res.mode,
                 }
@@ -272,6 +277,18 @@ def format_report(report: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _field_value(key: str, text: str) -> Any:
+    """`text` as the type of the FitConfig field `key` (bool: true/false/1/0; bool("false") would be True)."""
+    default = getattr(FitConfig(), key, None)
+    if default is None or isinstance(default, tuple):
+        raise SystemExit(f"--set {key}=...: not a FitConfig field of a scalar type")
+    if isinstance(default, bool):
+        if text.lower() not in ("true", "false", "1", "0"):
+            raise SystemExit(f"--set {key}={text}: a bool field takes true, false, 1 or 0")
+        return text.lower() in ("true", "1")
+    return type(default)(text)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m prompose_grasp.eval.bench_fit", description=__doc__)
     parser.add_argument("--data", required=True, type=Path, help="dataset folder (with split.json)")
@@ -284,10 +301,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING)
-    overrides = {}
-    for item in args.set:
-        key, _, value = item.partition("=")
-        overrides[key] = type(getattr(FitConfig(), key))(value)
+    overrides = {key: _field_value(key, value) for key, _, value in (s.partition("=") for s in args.set)}
     report = run(args.data, args.split, args.max_frames, FitConfig(**overrides))
     sys.stdout.write(format_report(report) + "\n")
     if args.json is not None:

@@ -4,9 +4,18 @@ from prompose_grasp.perception.fit.core import (
     FitConfig,
     FitResult,
     FitStage,
+    SceneView,
     canonicalize_symmetry,
     fit_pose,
     visible_prior_mask,
 )
 
-__all__ = ["FitConfig", "FitResult", "FitStage", "canonicalize_symmetry", "fit_pose", "visible_prior_mask"]
+__all__ = [
+    "FitConfig",
+    "FitResult",
+    "FitStage",
+    "SceneView",
+    "canonicalize_symmetry",
+    "fit_pose",
+    "visible_prior_mask",
+]

@@ -46,6 +46,9 @@ class ShapeFamily:
         articulations: (label, build) pairs of other poses of an articulated family's parts (a laptop's
             screen opened to other angles), same frame and conventions as `build`; empty for rigid families.
             The fit tries them as extra hypotheses (`priors.library.articulated_variants`).
+        round_body_axis_m: (x, z) [m] in the frame of `build` of the vertical axis of a round main body
+            whose only asymmetric part is a small protrusion towards +x (a mug's handle), or None. When
+            the protrusion is not seen, the fit turns it behind the body (`priors.library.round_body_axis`).
     """
 
     name: str
@@ -54,6 +57,7 @@ class ShapeFamily:
     frame: str
     build: Callable[[], trimesh.Trimesh]
     articulations: tuple[tuple[str, Callable[[], trimesh.Trimesh]], ...] = ()
+    round_body_axis_m: tuple[float, float] | None = None
 
 
 #: Other screen openings of the laptop family [deg] (the mean shape is 110).
@@ -386,6 +390,7 @@ _FAMILY_LIST = (
         "none",
         "NOCS: axis along +y, opening up, handle towards +x",
         _mug,
+        round_body_axis_m=(0.0, 0.0),  # the body is lathed about the y axis
     ),
     ShapeFamily(
         "cup",

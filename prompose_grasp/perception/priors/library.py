@@ -24,7 +24,12 @@ from numpy.typing import ArrayLike
 
 from prompose_grasp.errors import InvalidInputError, UnknownNameError
 from prompose_grasp.perception.priors.families import FAMILIES, ShapeFamily
-from prompose_grasp.perception.priors.prior import DEFAULT_N_POINTS, ShapePrior, make_prior
+from prompose_grasp.perception.priors.prior import (
+    DEFAULT_N_POINTS,
+    ShapePrior,
+    make_prior,
+    normalize_to_unit_box,
+)
 from prompose_grasp.perception.priors.superquadric import (
     SuperquadricFit,
     fit_superquadric,
@@ -38,6 +43,7 @@ __all__ = [
     "articulated_variants",
     "core_phrase",
     "head_noun",
+    "round_body_axis",
     "superquadric_prior",
 ]
 
@@ -165,6 +171,34 @@ def articulated_variants(prior: ShapePrior, seed: int = 0) -> tuple[ShapePrior, 
                 _VARIANTS[key] = variant
         out.append(variant)
     return tuple(out)
+
+
+#: family name -> unit-box (x, z) of its round body's axis (`round_body_axis`), computed once.
+_BODY_AXES: dict[str, np.ndarray] = {}
+
+
+def round_body_axis(prior: ShapePrior) -> np.ndarray | None:
+    """(2,) unit-box (x, z) of the vertical axis of the prior's round main body, or None.
+
+    Only library families with `ShapeFamily.round_body_axis_m` (the mug: its body is round about this axis
+    and only the handle, towards +x, breaks the symmetry) have one. The family's mesh is normalised as the
+    prior is (`prior.normalize_to_unit_box`), so the axis lands where the prior's body is.
+    """
+    if not isinstance(prior, ShapePrior):
+        raise InvalidInputError(f"prior must be a ShapePrior, got {type(prior).__name__}")
+    family = FAMILIES.get(prior.name)
+    if family is None or family.round_body_axis_m is None or prior.source != f"library:{prior.name}":
+        return None
+    with _VARIANTS_LOCK:
+        axis = _BODY_AXES.get(family.name)
+    if axis is None:
+        _, centre, extents = normalize_to_unit_box(family.build())
+        xz_m = np.asarray(family.round_body_axis_m, dtype=np.float64)
+        axis = (xz_m - centre[[0, 2]]) / extents[[0, 2]]
+        axis.setflags(write=False)
+        with _VARIANTS_LOCK:
+            _BODY_AXES[family.name] = axis
+    return axis
 
 
 class PriorLibrary:
