@@ -486,3 +486,39 @@ def test_observable_points_know_the_image_and_occluders(library: PriorLibrary) -
         SceneView(depth, _CAM, mask.astype(np.uint8))
     with pytest.raises(InvalidInputError, match="SceneView"):
         fit_pose(np.full((50, 3), 1.0), box, scene=depth)  # type: ignore[arg-type]
+
+
+def _instance_mug() -> tuple[np.ndarray, np.ndarray]:
+    """Dense surface samples of a mug unlike the family's mean shape (radius 45 mm, 100 mm tall, a ring
+    handle of 28 mm radius and 7 mm tube at mid-height, in the x-y plane on the +x side, half sunk in the
+    body), centred on its amodal box; and the box size [m]."""
+    r, h = 0.045, 0.10
+    body = trimesh.creation.cylinder(radius=r, height=h, sections=64)
+    body.apply_transform(trimesh.transformations.rotation_matrix(-math.pi / 2.0, [1.0, 0.0, 0.0]))
+    handle = trimesh.creation.torus(major_radius=0.028, minor_radius=0.007)
+    handle.apply_translation([r, 0.0, 0.0])
+    mesh = trimesh.util.concatenate([body, handle])
+    lo, hi = mesh.bounds
+    pts, _ = trimesh.sample.sample_surface(mesh, 80000, seed=7)
+    return np.asarray(pts) - 0.5 * (lo + hi), hi - lo
+
+
+def test_seen_handle_sets_the_yaw_of_a_mug_unlike_the_prior(library: PriorLibrary) -> None:
+    # The instance's handle is rounder and reaches less far than the family's: the full fit's yaw drifts
+    # (body and handle share the x scale); the handle's own points set it.
+    prior = library.family_prior("mug")
+    samples, size = _instance_mug()
+    rng = np.random.default_rng(6)
+    errors = []
+    for k, away_deg in enumerate((60.0, 100.0, -75.0)):
+        R, t, up = _mug_pose(rng, handle_from_away_deg=away_deg, elevation_deg=35.0 + 5.0 * k)
+        gt = Pose9D(R, t, size)
+        plane = _plane_below(gt, up)
+        depth, label = _render([(samples @ R.T + t, 1)], plane)
+        pts = _observed(depth, label == 1, rng)
+        fit = fit_pose(pts, prior, support_plane_cam=plane, scene=SceneView(depth, _CAM, label == 1))
+        errors.append(_rotation_error_deg(fit.pose, gt, "none"))
+    # 4.5 deg, under the NOCS 5 deg bar: the handle's points fix its direction to ~1 deg, but the
+    # instance's handle is a ring half sunk in the body and the family's a half ellipse, and their best
+    # match differs by ~3 deg here (2.7-3.3; without the handle's own yaw step 4.2-7.3 deg)
+    assert max(errors) < 4.5, errors
