@@ -447,7 +447,8 @@ def plan_pick_place(
 
 def free_move(robot, scene, q0, q1, grip, opening, held, T_tcp_obj, cfg, T_tcp_flange, holding) -> np.ndarray:
     """A free move: the joint line q0 -> q1, or, when it collides, a detour: straight up from q0, a joint line
-    across, straight down to q1, at 1, 2, 3 or 4 x `safe_height_m` above the higher end (the first free)."""
+    across, straight down to q1, at 1, 2, 3 or 4 x `safe_height_m` above the higher end (the first free;
+    carrying an object, 0, 1/3 and 2/3 x first)."""
     held = held if holding else None
     W = np.array([q0, q1])
     _, hit = check_path(robot, scene, W, grip, opening, not holding, held, T_tcp_obj, cfg)
@@ -457,7 +458,9 @@ def free_move(robot, scene, q0, q1, grip, opening, held, T_tcp_obj, cfg, T_tcp_f
     T1 = robot.fk(q1) @ grip.T_flange_tcp
     up = np.array([0.0, 0.0, 1.0]) if scene.support is None else np.asarray(scene.support.normal)
     h0, h1 = float(T0[:3, 3] @ up), float(T1[:3, 3] @ up)
-    for k in (1, 2, 3, 4):
+    # Carrying an object, lower detours first (at the higher end's own height, then a third and two thirds
+    # of `safe_height_m` above it): from a pallet's far corner 15 cm above the pre-place is out of reach.
+    for k in (0.0, 1 / 3, 2 / 3, 1, 2, 3, 4) if holding else (1, 2, 3, 4):
         top = max(h0, h1) + k * cfg.safe_height_m
         A, B = T0.copy(), T1.copy()
         A[:3, 3] += (top - h0) * up
