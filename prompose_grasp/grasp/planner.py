@@ -33,10 +33,12 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from prompose_grasp.errors import InvalidInputError, NoFeasibleGrasp
-from prompose_grasp.geometry.se3 import invert_T
+from prompose_grasp.geometry.camera import CameraIntrinsics
+from prompose_grasp.geometry.pointcloud import back_project, valid_depth_mask
+from prompose_grasp.geometry.se3 import as_transform, invert_T, transform_points
 from prompose_grasp.grasp.batch_ik import ik_nearest_batch
 from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry, get_gripper
-from prompose_grasp.grasp.scene import CollisionScene
+from prompose_grasp.grasp.scene import CollisionScene, segment_distance
 from prompose_grasp.grasp.synthesis import (
     Candidates,
     antipodal_grasps,
@@ -48,7 +50,14 @@ from prompose_grasp.grasp.types import Grasp, GraspConfig, GraspPlan, ObjectMode
 from prompose_grasp.robot.kinematics import fk_batch
 from prompose_grasp.robot.model import RobotModel
 
-__all__ = ["build_scene", "generate_candidates", "gripper_hulls", "plan_grasps", "robot_self_capsules"]
+__all__ = [
+    "build_scene",
+    "generate_candidates",
+    "gripper_hulls",
+    "plan_grasps",
+    "robot_pixel_mask",
+    "robot_self_capsules",
+]
 
 log = logging.getLogger(__name__)
 
@@ -146,6 +155,44 @@ def robot_self_capsules(
     radius = float(np.linalg.norm(np.maximum(np.abs(lo[:2]), np.abs(hi[:2]))))
     tip = (T_flange @ gripper.T_flange_tcp)[:3, 3]
     return [*robot.capsules_in_base(q), ("gripper", T_flange[:3, 3], tip, radius)]
+
+
+def robot_pixel_mask(
+    depth_m: np.ndarray,
+    intrinsics: CameraIntrinsics,
+    T_base_cam: ArrayLike,
+    capsules: Sequence[tuple[str, np.ndarray, np.ndarray, float]],
+    margin_m: float = 0.03,
+) -> np.ndarray:
+    """(H, W) bool: the pixels whose depth reading lies on the robot itself, i.e. within `margin_m` of one of
+    its `capsules` (name, p0, p1, radius) in `base` (`robot_self_capsules` at the joints of the capture).
+
+    Robot self-filtering: a camera that sees the arm (a fixed camera with the arm parked in view) would
+    otherwise offer a link as an object to ground ("a large black box-shaped object", 0.49 m tall, next to
+    the tea box). Pixels without a reading are never on the robot.
+    """
+    D = np.asarray(depth_m)
+    T = as_transform(T_base_cam, "T_base_cam")
+    out = np.zeros(D.shape, dtype=bool)
+    valid = valid_depth_mask(D)
+    if not capsules or not valid.any():
+        return out
+    idx = np.flatnonzero(valid)
+    P = back_project(D, intrinsics)  # camera frame, row-major order of the valid pixels
+    # The capsules move to the camera frame (a few end points) rather than the frame's ~300k points to base.
+    T_cam_base = invert_T(T)
+    caps = [(transform_points(T_cam_base, np.stack([p0, p1])), float(r)) for _, p0, p1, r in capsules]
+    # Only points inside the capsules' common bounding box (grown by radius + margin) can be on the robot.
+    ends = np.concatenate([e for e, _ in caps])
+    grow = max(r for _, r in caps) + float(margin_m)
+    near = np.flatnonzero(np.all((P >= ends.min(axis=0) - grow) & (P <= ends.max(axis=0) + grow), axis=1))
+    Pn = P[near]
+    hit = np.zeros(len(Pn), dtype=bool)
+    for (p0, p1), radius in caps:
+        hit |= segment_distance(Pn, p0, p1) <= radius + float(margin_m)
+    on_robot = near[hit]
+    out.ravel()[idx[on_robot]] = True
+    return out
 
 
 def build_scene(

@@ -37,7 +37,7 @@ from prompose_grasp.grasp.batch_ik import link_frames_batch
 from prompose_grasp.grasp.synthesis import cross
 from prompose_grasp.grasp.types import ObjectModel, Plane
 
-__all__ = ["CollisionScene", "Hit", "obb_overlap", "voxelize_points"]
+__all__ = ["CollisionScene", "Hit", "obb_overlap", "segment_distance", "voxelize_points"]
 
 log = logging.getLogger(__name__)
 
@@ -226,7 +226,7 @@ class CollisionScene:
                 local = (P - obs.pose.t) @ obs.pose.R
                 P = P[~np.all(np.abs(local) <= obs.pose.size / 2.0 + voxel_size_m, axis=1)]
             for _, p0, p1, radius in robot_capsules:
-                P = P[_segment_distance(P, np.asarray(p0), np.asarray(p1)) > radius + robot_margin_m]
+                P = P[segment_distance(P, np.asarray(p0), np.asarray(p1)) > radius + robot_margin_m]
             if target is not None:
                 local = (P - target.pose.t) @ target.pose.R
                 inside = np.all(np.abs(local) <= target.pose.size / 2.0 + target_margin_m, axis=1)
@@ -795,7 +795,7 @@ def _segment_box_distance(
     return np.sqrt(np.min(np.sum(e * e, axis=2), axis=1))
 
 
-def _segment_distance(P: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+def segment_distance(P: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
     """(N,) distances [m] of points (N, 3) from the segment p0 -> p1."""
     d = p1 - p0
     L2 = float(d @ d)

@@ -82,7 +82,7 @@ from prompose_grasp.grasp import (
     plan_place,
 )
 from prompose_grasp.grasp.motion import MotionConfig, free_move, place_support_fixture, timed_trajectory
-from prompose_grasp.grasp.planner import build_scene
+from prompose_grasp.grasp.planner import build_scene, robot_pixel_mask, robot_self_capsules
 from prompose_grasp.grasp.scene import CollisionScene
 from prompose_grasp.pipeline.command import Command, CommandNotUnderstood, CommandParser
 from prompose_grasp.pipeline.outcome import AttemptRecord, PickOutcome, ProgressEvent
@@ -145,6 +145,9 @@ class PickConfig:
             is ignored [m].
         pad_depth_margin_m: jaw grasps with the pads' centre this much deeper than half a pad inside the
             estimated box are tried first (robust to the estimate's ~1 cm error) [m].
+        self_filter_margin_m: depth readings within this of the arm's and gripper's capsules at the joints of
+            the capture are the robot itself and are dropped before estimating (robot self-filtering: a link
+            in view is otherwise grounded as an object), or None to keep them [m].
         grasp: `GraspConfig` of the planner.
     """
 
@@ -174,6 +177,7 @@ class PickConfig:
     max_object_height_m: float | None = None
     wrist_look_m: float = 0.15
     wrist_max_shift_m: float = 0.10
+    self_filter_margin_m: float | None = 0.03
     grasp: GraspConfig | None = None
 
     def __post_init__(self) -> None:
@@ -217,6 +221,9 @@ class PickConfig:
                 f"PickConfig.candidate_order must be one of {', '.join(_CANDIDATE_ORDERS)}, "
                 f"got {self.candidate_order!r}"
             )
+        m = self.self_filter_margin_m
+        if m is not None and not (math.isfinite(float(m)) and float(m) >= 0):
+            raise InvalidInputError(f"PickConfig.self_filter_margin_m must be None or >= 0 m, got {m}")
         h = self.max_object_height_m
         if h is not None and not (math.isfinite(float(h)) and float(h) > 0):
             raise InvalidInputError(f"PickConfig.max_object_height_m must be None or > 0 m, got {h}")
@@ -426,11 +433,24 @@ class PickAndPlace:
                 raise _Abort("camera_failed", f"the camera returned {type(frame).__name__}, not an RGBDFrame")
             if frame.T_base_cam is None:
                 raise _Abort("camera_failed", "the frame has no T_base_cam: calibrate the camera to the base")
-            return frame
+            return self._without_robot(frame)
         raise _Abort(
             "camera_failed",
             f"{self.config.camera_retries} captures failed; last: {errors[-1] if errors else '?'}",
         )
+
+    def _without_robot(self, frame: RGBDFrame) -> RGBDFrame:
+        """The frame with no depth reading where it sees the robot itself (`PickConfig.self_filter_margin_m`):
+        the arm stands still while the loop observes, so its joints now are its joints at the capture."""
+        margin = self.config.self_filter_margin_m
+        if margin is None:
+            return frame
+        capsules = robot_self_capsules(self.robot, self.gripper_geometry, self.arm.joint_positions())
+        on_robot = robot_pixel_mask(frame.depth_m, frame.intrinsics, frame.T_base_cam, capsules, margin)
+        if not on_robot.any():
+            return frame
+        logger.debug("self-filter: %d depth pixels on the robot dropped", int(on_robot.sum()))
+        return dataclasses.replace(frame, depth_m=np.where(on_robot, np.float32(0.0), frame.depth_m))
 
     def _estimates(self, prompt: str, timings: dict[str, float]) -> tuple[RGBDFrame, list[Any]]:
         """Capture `observe_frames` frames and estimate the prompt: the candidates, best first (one with a
