@@ -1,23 +1,13 @@
 """Robot self-filtering (`grasp.planner.robot_pixel_mask`): the depth pixels within a margin of the robot's
-capsules, against a brute-force distance computed independently; and on a rendered MuJoCo scene with the arm
-parked in view, the arm's pixels go and no object pixel does."""
+capsules, against a brute-force distance computed independently (the rendered case: tests/sim)."""
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
-import pytest
 
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.se3 import make_T
-from prompose_grasp.grasp import get_gripper
-from prompose_grasp.grasp.planner import robot_pixel_mask, robot_self_capsules
-
-os.environ.setdefault("MUJOCO_GL", "egl")
-
-SCENE = Path(__file__).resolve().parents[2] / "sim" / "scenes" / "tabletop_household.yaml"
+from prompose_grasp.grasp.planner import robot_pixel_mask
 
 
 def _brute_force_distance(P: np.ndarray, p0: np.ndarray, p1: np.ndarray, n: int = 20001) -> np.ndarray:
@@ -57,22 +47,3 @@ def test_mask_matches_a_brute_force_distance():
     assert not mask[depth == 0].any() and not mask[0, 0]
     # No capsules: nothing is the robot.
     assert not robot_pixel_mask(depth, K, T_base_cam, [], margin).any()
-
-
-@pytest.mark.sim
-def test_the_parked_arm_is_filtered_and_no_object_pixel_is():
-    from sim.arm import SimArm
-    from sim.scene_file import build_scene, load_scene
-
-    with build_scene(load_scene(SCENE), seed=29) as world:
-        frame = world.render("front", rng=np.random.default_rng(29))
-        objects = world.ground_truth_mask("front") > 0  # ground truth: test only
-        with SimArm(world) as arm:
-            q = arm.joint_positions()
-        robot = world.robot.robot
-    capsules = robot_self_capsules(robot, get_gripper("parallel_jaw"), q)
-    mask = robot_pixel_mask(frame.depth_m, frame.intrinsics, frame.T_base_cam, capsules, 0.03)
-    # The front camera sees the parked UR5e (about 11k pixels of 640 x 480 on this seed).
-    assert mask.sum() > 5000
-    # Not one pixel of the six objects on the table is taken for the robot.
-    assert not (mask & objects).any()
