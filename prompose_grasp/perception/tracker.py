@@ -38,7 +38,7 @@ from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import back_project, depth_to_point_map
 from prompose_grasp.geometry.se3 import invert_T, so3_exp, so3_log
 from prompose_grasp.perception.estimator import Estimate, plane_vector
-from prompose_grasp.perception.fit import FitConfig, FitResult, fit_pose
+from prompose_grasp.perception.fit import FitResult, fit_pose
 from prompose_grasp.perception.grounding import SupportPlane
 from prompose_grasp.perception.priors import ShapePrior
 from prompose_grasp.robot.interfaces import RGBDFrame
@@ -70,11 +70,12 @@ class TrackerConfig:
         blend: weight of the new measurement against the prediction for rotation, translation and log size,
             in (0, 1]; 1 turns smoothing off.
         refit_angle_deg: when the direction from the object to the camera has turned by more than this since
-            the last re-fit, the frame alone is fitted too, from the tracked pose and its quarter turns
-            (`Tracker._refit`), and the better of that and the tracked fit (`Tracker._score`) goes on: a
-            wrong first estimate (a mug's yaw with the handle hidden; errors of a grounded first mask that
-            the fused window keeps) is corrected once the new views show what the first did not. 180 turns
-            it off (a warm start cannot jump between basins).
+            the last re-fit, the frame gets a cold multi-hypothesis fit too (`Tracker._refit`), and the better
+            of it and the tracked fit (`Tracker._score`) goes on: a wrong first estimate (a mug's yaw
+            with the handle hidden, a flipped box seen edge-on) is corrected once the new views
+            show what the first did not, and a laptop's screen opening is chosen again. 180 turns it off (a
+            warm start cannot jump between basins).
+        refit_points: points of the frame the re-fit keeps (`Tracker._refit`).
         compare_points: observed points of this frame on which the two candidates are compared.
         refit_gain: the re-fit replaces the tracked fit when its score is below this times the tracked
             one's (hysteresis: the tracked fit has the window's views behind it).
@@ -96,6 +97,7 @@ class TrackerConfig:
     max_rms_m: float = 0.015
     blend: float = 0.6
     refit_angle_deg: float = 20.0
+    refit_points: int = 768
     compare_points: int = 1024
     refit_gain: float = 1.0
     old_view_weight: float = 1.0
@@ -116,6 +118,8 @@ class TrackerConfig:
             )
         if not 0.0 < self.refit_angle_deg <= 180.0 or self.compare_points < 8:
             raise InvalidInputError("TrackerConfig needs 0 < refit_angle_deg <= 180 and compare_points >= 8")
+        if self.refit_points < 8:
+            raise InvalidInputError(f"TrackerConfig.refit_points must be >= 8, got {self.refit_points}")
         if not 0.0 < self.blend <= 1.0:
             raise InvalidInputError(f"TrackerConfig.blend must be in (0, 1], got {self.blend}")
         for name in ("roi_margin_m", "surface_margin_m", "plane_clearance_m", "max_rms_m"):
@@ -127,25 +131,6 @@ def _plane_in(plane: SupportPlane, T_new_old: np.ndarray) -> SupportPlane:
     """The same plane expressed in another camera frame (x_new = T_new_old x_old)."""
     n = T_new_old[:3, :3] @ plane.normal_cam
     return SupportPlane(n, plane.offset_m - float(n @ T_new_old[:3, 3]), plane.inlier_fraction)
-
-
-#: Gauss-Newton iterations of each quarter turn's probe (`Tracker._refit`), and of the tracked pose's.
-_PROBE_ITERATIONS = 3
-
-#: Quarter turns about the object's +y tried by a re-fit, per symmetry tag of the prior (`Tracker._refit`).
-#: A turn the shape's symmetry maps onto itself gives the same box: a half turn of the two-fold shapes
-#: (y_2fold, a tube lying down), any turn of a round one; and a box's quarter turn with its footprint's
-#: sizes swapped is the same box again.
-_YAW_TURNS = {"none": (1, 2, 3), "y_2fold": (1,), "x_continuous": (1,)}
-
-
-def _turned(pose: Pose9D, quarter_turns: int) -> Pose9D:
-    """The box turned by `quarter_turns` x 90 deg about its own +y, covering the same footprint (x and z
-    sizes swapped on odd turns)."""
-    c, s = [(1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0)][quarter_turns % 4]
-    Ry = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-    size = pose.size[[2, 1, 0]] if quarter_turns % 2 else pose.size
-    return Pose9D(pose.R @ Ry, pose.t, size)
 
 
 def _blend(pred: Pose9D, meas: Pose9D, w: float) -> Pose9D:
@@ -257,11 +242,12 @@ class Tracker:
         ):
             self._refit_view = view
             self.refits += 1
-            other = self._refit(points, fit, fit_config, support)
-            if self._score(points, old_views, other, support) < cfg.refit_gain * self._score(
+            cold = self._refit(points, support)
+            if self._score(points, old_views, cold, support) < cfg.refit_gain * self._score(
                 points, old_views, fit, support
             ):
-                fit, jumped = other, True
+                fit, jumped = cold, True
+                self.prior = cold.prior or self.prior
                 self.refits_taken += 1
         if not math.isfinite(fit.loss) or self._rms(current, fit.pose) > cfg.max_rms_m:
             return None
@@ -283,41 +269,20 @@ class Tracker:
             support_plane=plane,
         )
 
-    def _refit(
-        self, points: np.ndarray, fit: FitResult, fit_config: FitConfig, support: np.ndarray | None
-    ) -> FitResult:
-        """The frame's own answer, to compare with the tracked fit: a warm fit of this frame's points alone,
-        from the tracked pose or from one of its quarter turns about its +y, whichever fits them best.
+    def _refit(self, points: np.ndarray, support: np.ndarray | None) -> FitResult:
+        """A cold multi-hypothesis fit of this frame's points, on the cold fit's coarse stages only.
 
-        The frame alone: the fused cloud carries the earlier frames' errors (a grounded first mask that took
-        in a few table or neighbour pixels), the new view does not. The quarter turns (footprint sizes
-        swapped on odd turns, so the box covers the same ground; turns the prior's symmetry maps onto
-        itself are skipped) are the basins a warm start cannot leave, such as a mug's handle side once the
-        handle comes into view: each is scored on the frame's points without iterations, and the best is
-        refined only when it already scores below the tracked pose.
-
-        This replaced a cold multi-hypothesis fit of the frame (8 yaws at 4 stages from the points' principal
-        axes, ~10 tracked frames' time; it ran on ~1 frame in 4 of the benchmark's sequences): the tracked
-        pose is a better start for size and centre than the cold fit's amodal box, so only its yaw's basins
-        need a look.
+        The single-frame fit's last stage (all 2048 points, 15 iterations on the survivor) is about half
+        of its time; here the survivor of the 768-point stage is good enough to be compared with the
+        tracked fit (`_score`), and if it wins, the next frames' warm fits refine it on the fused cloud.
         """
         assert self.prior is not None
-        best = fit_pose(points, self.prior, fit_config, init=fit.pose, support_plane_cam=support)
-        turns = _YAW_TURNS.get(self.prior.symmetry, ())
-        if turns:
-            probe = replace(fit_config, warm_iterations=_PROBE_ITERATIONS)
-            here = fit_pose(points, self.prior, probe, init=fit.pose, support_plane_cam=support).robust_loss
-            starts = [_turned(fit.pose, k) for k in turns]
-            losses = [
-                fit_pose(points, self.prior, probe, init=p, support_plane_cam=support).robust_loss
-                for p in starts
-            ]
-            k = int(np.argmin(losses))
-            if losses[k] < here:
-                turned = fit_pose(points, self.prior, fit_config, init=starts[k], support_plane_cam=support)
-                if turned.robust_loss < best.robust_loss:
-                    best = turned
-        return best
+        fc = self.estimator.fit_config
+        stages = fc.stages[:-1] if len(fc.stages) > 1 else fc.stages
+        n_points = max(self.config.refit_points, max(st.obs_points for st in stages))
+        return fit_pose(
+            points, self.prior, replace(fc, n_points=n_points, stages=stages), support_plane_cam=support
+        )
 
     def _fused_views(self, frame: RGBDFrame, pred: Pose9D) -> list[np.ndarray]:
         """The window's views in this camera frame."""

@@ -262,8 +262,8 @@ def test_a_track_on_the_wrong_yaw_is_turned_back_by_the_refit(refit):
     for frame, _ in frames[1:]:
         est = tracker.update(frame)
     gt = gt_world.transformed(np.linalg.inv(frames[-1][0].T_base_cam))
-    # the camera turns 12 deg a frame: the re-fit runs once the view has turned 20 deg (frame 2) and tries
-    # the tracked box's quarter turns; the half turn explains the handle's points and wins. Without it
+    # the camera turns 12 deg a frame: the re-fit runs once the view has turned 20 deg (frame 2); its cold
+    # multi-hypothesis fit of the frame puts the handle on the side its points are, and wins. Without it
     # the warm start stays in its basin, the handle on the wrong side (the control).
     if refit:
         assert tracker.refits >= 1 and tracker.refits_taken >= 1
