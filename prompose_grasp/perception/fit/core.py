@@ -555,7 +555,8 @@ def _evaluate(pb: _Problem, st: _State, want_jacobian: bool):
     if pb.config.self_occlusion:
         visible &= _not_self_occluded(x, s, cos_view)
     if pb.scene is not None:
-        visible &= _observable(pb.scene, x, pb.config.occlusion_margin_m)
+        idx = np.flatnonzero(visible)  # only the points still in: the projection costs per point
+        visible[idx] = _observable(pb.scene, x[idx], pb.config.occlusion_margin_m)
     delta = pb.config.huber_m
 
     # observation -> prior: every prior point may be the nearest one (see module docstring);
@@ -896,7 +897,7 @@ _PROTRUSION: weakref.WeakKeyDictionary[ShapePrior, tuple[np.ndarray, np.ndarray]
 def _handle_yaw(
     pb: _Problem, st: _State, axis_xz: np.ndarray, prior: ShapePrior, seen: np.ndarray, cfg: FitConfig
 ) -> _State:
-    """`st` turned about the round body's axis (within +-`handle_yaw_range_deg`, 1 deg steps) to the turn
+    """`st` turned about the round body's axis (within +-`handle_yaw_range_deg`, to 1 deg) to the turn
     whose visible protrusion points (the prior's handle, facing the camera) lie closest to the observed
     protrusion points `seen` (mean squared distance, each capped at 1 cm)."""
     cached = _PROTRUSION.get(prior)
@@ -910,17 +911,25 @@ def _handle_yaw(
     if len(hp) < 4:
         return st
     s = np.exp(st.log_s)
-    best_cost, best = math.inf, st
-    for a in np.arange(-cfg.handle_yaw_range_deg, cfg.handle_yaw_range_deg + 0.5, 1.0):
-        cand = st if a == 0.0 else _turn_about_body(pb, st, axis_xz, math.radians(float(a)))
-        x = (hp * s) @ cand.R.T + pb.centre(cand)
-        facing = np.einsum("ij,ij->i", (hn / s) @ cand.R.T, x) < 0.0
-        if np.count_nonzero(facing) < 4:
-            continue
-        d, _ = cKDTree(x[facing]).query(seen, k=1)
-        cost = float(np.mean(np.minimum(d, 0.01) ** 2))
-        if cost < best_cost:
-            best_cost, best = cost, cand
+    tried: dict[float, tuple[float, _State]] = {}
+
+    def cost_at(a: float) -> float:
+        if a not in tried:
+            cand = st if a == 0.0 else _turn_about_body(pb, st, axis_xz, math.radians(a))
+            x = (hp * s) @ cand.R.T + pb.centre(cand)
+            facing = np.einsum("ij,ij->i", (hn / s) @ cand.R.T, x) < 0.0
+            cost = math.inf
+            if np.count_nonzero(facing) >= 4:
+                d, _ = cKDTree(x[facing]).query(seen, k=1)
+                cost = float(np.mean(np.minimum(d, 0.01) ** 2))
+            tried[a] = (cost, cand)
+        return tried[a][0]
+
+    # 3 deg steps over the range, then 1 deg steps round the best (13 turns instead of 25)
+    rng = cfg.handle_yaw_range_deg
+    a0 = min([*np.arange(-rng, rng + 0.5, 3.0).tolist(), 0.0], key=cost_at)
+    a1 = min((a0 + d for d in (-2.0, -1.0, 0.0, 1.0, 2.0)), key=cost_at)
+    best = tried[a1][1] if math.isfinite(tried[a1][0]) else st
     return best
 
 
