@@ -94,14 +94,14 @@ def test_the_transfer_keeps_the_carton_above_the_conveyor_body():
     fixture = place_support_fixture(CONVEYOR)
     assert fixture is not None and fixture.kind == "fixture"
     # Independent check of the sag: the direct line takes the box's bottom below the belt top over the belt.
-    assert _over_belt_min_height(_dense(np.array([q0, q1]))) < BELT_Z
+    assert _over_belt_min_height(_dense(np.array([q0, q1]))) < BELT_Z  # strictly below: no tolerance needed
     scene = CollisionScene([fixture], Plane(np.array([0.0, 0.0, 1.0]), 0.55))  # the pallet's deck, below
     cfg = MotionConfig()
     _, hit = check_path(ROBOT, scene, np.array([q0, q1]), CUP, 0.0, False, held, T_TCP_OBJ, cfg)
     assert hit is not None and hit.name == "place support (held object)"
     W = free_move(ROBOT, scene, q0, q1, CUP, 0.0, held, T_TCP_OBJ, cfg, invert_T(CUP.T_flange_tcp), True)
     assert len(W) > 2  # a detour, not the direct line
-    assert np.allclose(W[0], q0) and np.allclose(W[-1], q1)
+    assert np.allclose(W[0], q0) and np.allclose(W[-1], q1)  # default 1e-8: the ends are the inputs
     # 3 mm: the collision check shrinks the carried box by `contact_margin_m` (it rests on its support).
     assert _over_belt_min_height(_dense(W)) >= BELT_Z - cfg.contact_margin_m
 
@@ -120,8 +120,8 @@ def test_place_support_fixture_is_only_for_a_surface_the_arm_does_not_stand_on()
     # Its top is the belt, its footprint the belt and the 4 cm rim (known answer from the target).
     corners = box.pose.corners()
     assert corners[:, 2].max() == pytest.approx(BELT_Z, abs=1e-9)  # exact: built from the surface
-    assert corners[:, 0].min() == pytest.approx(0.55 - 0.29, abs=1e-9)
-    assert corners[:, 1].max() == pytest.approx(1.04, abs=1e-9)
+    assert corners[:, 0].min() == pytest.approx(0.55 - 0.29, abs=1e-9)  # 1e-9: float rounding (as above)
+    assert corners[:, 1].max() == pytest.approx(1.04, abs=1e-9)  # 1e-9: float rounding (as above)
 
 
 def test_a_carried_box_swung_into_the_upper_arm_is_a_collision():
@@ -166,6 +166,7 @@ def test_suction_held_moves_are_timed_to_the_cups_acceleration():
     slow = timed_held_trajectory(ROBOT, W, cfg, T_flange_point, cfg.suction_held_accel_m_s2)
     assert peak(fast) > 4.0  # 4.8 m/s^2: over the cup's cap, the load that lost cartons
     assert peak(slow) <= cfg.suction_held_accel_m_s2 + 1e-6  # 1e-6: float rounding of the differences
+    # allclose's default 1e-8: the last sample is the goal itself (float rounding of the profile).
     assert np.allclose(slow.q[-1], W[-1]) and slow.t_s[-1] > fast.t_s[-1]
     # The same path: every slow sample lies on the segment W[0] -> W[1] (joint space).
     s = (slow.q - W[0]) @ (W[1] - W[0]) / float((W[1] - W[0]) @ (W[1] - W[0]))
