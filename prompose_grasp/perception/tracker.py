@@ -75,7 +75,6 @@ class TrackerConfig:
             with the handle hidden, a flipped box seen edge-on) is corrected once the new views
             show what the first did not, and a laptop's screen opening is chosen again. 180 turns it off (a
             warm start cannot jump between basins).
-        refit_points: points of the frame the re-fit keeps (`Tracker._refit`).
         compare_points: observed points of this frame on which the two candidates are compared.
         refit_gain: the re-fit replaces the tracked fit when its score is below this times the tracked
             one's (hysteresis: the tracked fit has the window's views behind it).
@@ -97,7 +96,6 @@ class TrackerConfig:
     max_rms_m: float = 0.015
     blend: float = 0.6
     refit_angle_deg: float = 20.0
-    refit_points: int = 768
     compare_points: int = 1024
     refit_gain: float = 1.0
     old_view_weight: float = 1.0
@@ -118,8 +116,6 @@ class TrackerConfig:
             )
         if not 0.0 < self.refit_angle_deg <= 180.0 or self.compare_points < 8:
             raise InvalidInputError("TrackerConfig needs 0 < refit_angle_deg <= 180 and compare_points >= 8")
-        if self.refit_points < 8:
-            raise InvalidInputError(f"TrackerConfig.refit_points must be >= 8, got {self.refit_points}")
         if not 0.0 < self.blend <= 1.0:
             raise InvalidInputError(f"TrackerConfig.blend must be in (0, 1], got {self.blend}")
         for name in ("roi_margin_m", "surface_margin_m", "plane_clearance_m", "max_rms_m"):
@@ -270,19 +266,14 @@ class Tracker:
         )
 
     def _refit(self, points: np.ndarray, support: np.ndarray | None) -> FitResult:
-        """A cold multi-hypothesis fit of this frame's points, on the cold fit's coarse stages only.
+        """A cold multi-hypothesis fit of this frame's points (the estimator's own fit settings).
 
-        The single-frame fit's last stage (all 2048 points, 15 iterations on the survivor) is about half
-        of its time; here the survivor of the 768-point stage is good enough to be compared with the
-        tracked fit (`_score`), and if it wins, the next frames' warm fits refine it on the fused cloud.
+        Tried and measured (docs/fit.md, temporal refinement): a warm fit of the frame alone from the
+        tracked pose and its quarter turns costs a third of this and lost ~5 points on the benchmark's
+        tracked rows; the cold fit without its 2048-point stage saved no measurable time.
         """
         assert self.prior is not None
-        fc = self.estimator.fit_config
-        stages = fc.stages[:-1] if len(fc.stages) > 1 else fc.stages
-        n_points = max(self.config.refit_points, max(st.obs_points for st in stages))
-        return fit_pose(
-            points, self.prior, replace(fc, n_points=n_points, stages=stages), support_plane_cam=support
-        )
+        return fit_pose(points, self.prior, self.estimator.fit_config, support_plane_cam=support)
 
     def _fused_views(self, frame: RGBDFrame, pred: Pose9D) -> list[np.ndarray]:
         """The window's views in this camera frame."""
