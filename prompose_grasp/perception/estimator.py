@@ -29,7 +29,7 @@ import trimesh
 from prompose_grasp.errors import InvalidInputError, ObjectNotFoundError
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.pointcloud import back_project, valid_depth_mask
-from prompose_grasp.perception.fit import FitConfig, fit_pose
+from prompose_grasp.perception.fit import FitConfig, SceneView, fit_pose
 from prompose_grasp.perception.grounding import Candidate, Grounder, GroundingResult, SupportPlane
 from prompose_grasp.perception.priors import PriorLibrary, ShapePrior
 from prompose_grasp.robot.interfaces import RGBDFrame
@@ -238,6 +238,7 @@ class ProMPose:
                     grounding,
                     {"grounding": grounding_ms, "prior": prior_ms},
                     network_input=(frame, prompt),
+                    scene=SceneView(frame.depth_m, frame.intrinsics, candidate.mask),
                 )
             )
         for est in estimates:
@@ -289,7 +290,15 @@ class ProMPose:
         t0 = time.perf_counter()
         prior = prior or self._generate_prior(prompt, points, grounding)
         timings = {"grounding": grounding_ms, "prior": _ms(t0)}
-        est = self._fit(candidate, points, prior, grounding, timings, network_input=(frame, prompt))
+        est = self._fit(
+            candidate,
+            points,
+            prior,
+            grounding,
+            timings,
+            network_input=(frame, prompt),
+            scene=SceneView(frame.depth_m, frame.intrinsics, m),
+        )
         est.timings_ms["total"] = _ms(t_total)
         return est
 
@@ -322,14 +331,22 @@ class ProMPose:
         init: Pose9D | None = None,
         frame_index: int = 0,
         network_input: tuple[RGBDFrame, str] | None = None,
+        scene: SceneView | None = None,
     ) -> Estimate:
+        """Fit the prior to the candidate's points; `scene` (its depth image and mask) lets the fit ignore
+        prior points the camera could not have seen (off the image, no reading, behind an occluder)."""
         t0 = time.perf_counter()
         if init is None and self.network is not None and network_input is not None:
             init = self._network_pose(candidate, prior, *network_input)
             timings_ms["network"] = _ms(t0)
             t0 = time.perf_counter()  # "pose" is the fit alone
         fit = fit_pose(
-            points, prior, self.fit_config, init=init, support_plane_cam=plane_vector(grounding.support_plane)
+            points,
+            prior,
+            self.fit_config,
+            init=init,
+            support_plane_cam=plane_vector(grounding.support_plane),
+            scene=scene,
         )
         timings_ms["pose"] = _ms(t0)
         return Estimate(
