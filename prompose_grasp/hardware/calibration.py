@@ -18,7 +18,7 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import yaml
@@ -114,20 +114,24 @@ def check_rigid(T: ArrayLike, name: str, source: str = "<memory>") -> np.ndarray
     return out
 
 
+def read_cell_file(path: str | Path, what: str, error: type[InvalidInputError] = InvalidInputError) -> Any:
+    """The parsed content of a cell file (YAML, or JSON by its suffix); a missing or unparsable file raises
+    `error` naming the file ("<path>: no such <what>")."""
+    p = Path(path)
+    if not p.is_file():
+        raise error(f"{p}: no such {what}")
+    text = p.read_text()
+    try:
+        return json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as exc:
+        raise error(f"{p}: not valid {'JSON' if p.suffix.lower() == '.json' else 'YAML'}: {exc}") from None
+
+
 def load_calibration(path: str | Path) -> HandEyeCalibration:
     """Read a hand-eye calibration file (YAML or JSON; see the module docstring)."""
     p = Path(path)
-    if not p.is_file():
-        raise CalibrationError(
-            f"{p}: no such calibration file (a YAML/JSON file with T_base_cam or T_flange_cam)"
-        )
-    text = p.read_text()
-    try:
-        doc = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as exc:
-        raise CalibrationError(
-            f"{p}: not valid {'JSON' if p.suffix.lower() == '.json' else 'YAML'}: {exc}"
-        ) from None
+    what = "calibration file (a YAML/JSON file with T_base_cam or T_flange_cam)"
+    doc = read_cell_file(p, what, CalibrationError)
     if not isinstance(doc, dict):
         raise CalibrationError(
             f"{p}: expected a mapping with T_base_cam or T_flange_cam, got {type(doc).__name__}"

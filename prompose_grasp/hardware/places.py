@@ -22,19 +22,17 @@ where the arm will put an object down.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from scipy.spatial.transform import Rotation
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.grasp import PalletPattern, PlaceTarget
-from prompose_grasp.hardware.calibration import check_rigid
+from prompose_grasp.hardware.calibration import check_rigid, read_cell_file
 from prompose_grasp.pipeline.command import PLACE_TARGETS
 
 __all__ = ["load_place_targets"]
@@ -144,15 +142,7 @@ def _entry(name: str, entry: Any, source: str) -> PlaceTarget:
 def load_place_targets(path: str | Path) -> dict[str, PlaceTarget]:
     """Read a place-target file (YAML or JSON; see the module docstring) -> {fixture name: PlaceTarget}."""
     p = Path(path)
-    if not p.is_file():
-        raise InvalidInputError(f"{p}: no such place-target file (a YAML/JSON file with place_targets: ...)")
-    text = p.read_text()
-    try:
-        doc = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as exc:
-        raise InvalidInputError(
-            f"{p}: not valid {'JSON' if p.suffix.lower() == '.json' else 'YAML'}: {exc}"
-        ) from None
+    doc = read_cell_file(p, "place-target file (a YAML/JSON file with place_targets: ...)")
     if (
         not isinstance(doc, Mapping)
         or not isinstance(doc.get("place_targets"), Mapping)
