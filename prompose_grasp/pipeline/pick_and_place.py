@@ -9,6 +9,8 @@ outcome = pnp.run("put the red mug in the bin")      # PickOutcome; outcome.reas
 Nothing here reads ground truth: the target is whatever the estimator grounds from the camera frames, the
 grasp is planned on that estimate and the observed points, and success is judged from the gripper (jaws
 stopped on something / suction contact) and a re-observation (the object is no longer where it stood).
+Every captured frame first loses the depth readings that lie on the robot itself (its capsules at the
+joints of the capture, `PickConfig.self_filter_margin_m`), so a link in view is never offered as an object.
 
 Every expected failure ends the run with a typed reason (`PickOutcome.reason`) instead of an exception:
 
