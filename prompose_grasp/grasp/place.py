@@ -46,6 +46,7 @@ __all__ = [
     "PlaceConfig",
     "PlacePose",
     "PlaceTarget",
+    "footprint",
     "pallet_layout",
     "pallet_slots",
     "plan_place",
@@ -155,8 +156,9 @@ class PlacePose:
     reason: str
 
 
-def _footprint(R_surface_obj: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, float]:
-    """(half extents along surface x, y (2,), half height along the normal) of a box [m]."""
+def footprint(R_surface_obj: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, float]:
+    """(half extents along surface x, y (2,), half height along the normal) of a box of `size` (3,) [m]
+    turned by `R_surface_obj` (3, 3) in the surface's frame: what it covers of the surface."""
     half = np.abs(R_surface_obj) @ (size / 2.0)
     return half[:2], float(half[2])
 
@@ -276,7 +278,7 @@ def plan_place(
 
     candidates: list[tuple[tuple[int, int, int] | None, np.ndarray, float]] = []  # (slot, centre_surf, yaw)
     if target.kind == "pallet":
-        half_xy, half_h = _footprint(R_surf_obj, size)
+        half_xy, half_h = footprint(R_surf_obj, size)
         try:
             layout = pallet_layout(target, half_xy, half_h)
         except InvalidInputError as exc:  # the pattern of cartons this size is larger than the deck
@@ -298,7 +300,7 @@ def plan_place(
         margin = cfg.wall_margin_m if target.kind == "bin" else 0.0
         near = np.zeros(2) if cfg.near_xy_m is None else np.asarray(cfg.near_xy_m, dtype=np.float64)
         for yaw in (0.0, 0.5 * math.pi, math.pi, 1.5 * math.pi):
-            half_xy, half_h = _footprint(_rz(yaw) @ R_surf_obj, size)
+            half_xy, half_h = footprint(_rz(yaw) @ R_surf_obj, size)
             room = target.half_extents_xy_m - half_xy - margin
             if np.any(room < 0):
                 continue

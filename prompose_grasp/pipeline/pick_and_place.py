@@ -84,6 +84,7 @@ from prompose_grasp.grasp import (
     plan_place,
 )
 from prompose_grasp.grasp.motion import MotionConfig, free_move, place_support_fixture, timed_trajectory
+from prompose_grasp.grasp.place import footprint
 from prompose_grasp.grasp.planner import build_scene, robot_pixel_mask, robot_self_capsules
 from prompose_grasp.grasp.scene import CollisionScene
 from prompose_grasp.pipeline.command import Command, CommandNotUnderstood, CommandParser
@@ -759,7 +760,7 @@ class PickAndPlace:
             return False
         carried = self._carried(obs)
         R = np.asarray(target.T_base_surface, dtype=np.float64)[:3, :3].T @ carried.pose.R
-        half = (np.abs(R) @ (np.asarray(carried.pose.size, dtype=np.float64) / 2.0))[:2]
+        half, _ = footprint(R, np.asarray(carried.pose.size, dtype=np.float64))
         room = np.asarray(target.half_extents_xy_m, dtype=np.float64)
         return bool(np.any(half > room) and np.any(half[::-1] > room))
 
