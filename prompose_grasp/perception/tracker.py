@@ -163,7 +163,6 @@ class Tracker:
         self._rng = np.random.default_rng(0)
         self._prior_cache: tuple[ShapePrior, np.ndarray] | None = None
         self._refit_view: np.ndarray | None = None  # unit object -> camera direction at the last re-fit
-        self._rms_memo: tuple[np.ndarray, Pose9D, float] | None = None
         self.reinitialisations = 0
         self.window_restarts = 0
         self.refits = 0
@@ -225,10 +224,13 @@ class Tracker:
         old_views = np.concatenate([np.zeros((0, 3)), *self._fused_views(frame, pred)])
         cloud = np.concatenate([current, old_views])
         fit = fit_pose(cloud, self.prior, fit_config, init=pred, support_plane_cam=support)
-        if self._views and self._rms(current, fit.pose) > cfg.max_rms_m:
+        # this frame's RMS to the fit, for the checks below; NaN when the fit changes and it must be redone
+        rms = self._rms(current, fit.pose) if self._views else math.nan
+        if rms > cfg.max_rms_m:
             # the window disagrees with this frame: the object moved in the world; start the window again
             cloud, old_views = current, np.zeros((0, 3))
             fit = fit_pose(current, self.prior, fit_config, init=pred, support_plane_cam=support)
+            rms = math.nan
             self._views.clear()
             self.window_restarts += 1
         jumped = False
@@ -242,10 +244,12 @@ class Tracker:
             if self._score(points, old_views, cold, support) < cfg.refit_gain * self._score(
                 points, old_views, fit, support
             ):
-                fit, jumped = cold, True
+                fit, jumped, rms = cold, True, math.nan
                 self.prior = cold.prior or self.prior
                 self.refits_taken += 1
-        if not math.isfinite(fit.loss) or self._rms(current, fit.pose) > cfg.max_rms_m:
+        if math.isnan(rms):
+            rms = self._rms(current, fit.pose)
+        if not math.isfinite(fit.loss) or rms > cfg.max_rms_m:
             return None
         self._plane = plane
         # a jump to another basin is not smoothed (half-way between two yaws is neither)
@@ -310,17 +314,10 @@ class Tracker:
         return score
 
     def _rms(self, points_cam: np.ndarray, pose: Pose9D) -> float:
-        """Root-mean-square distance of the points to the posed prior's surface samples [m].
-
-        The last answer is kept: a frame asks twice for the same points and fit when the window holds."""
-        memo = self._rms_memo
-        if memo is not None and memo[0] is points_cam and memo[1] is pose:
-            return memo[2]
+        """Root-mean-square distance of the points to the posed prior's surface samples [m]."""
         assert self.prior is not None
         d, _ = cKDTree(pose.points_to_camera(self._prior_sample())).query(points_cam, k=1)
-        rms = float(np.sqrt(np.mean(d * d)))
-        self._rms_memo = (points_cam, pose, rms)
-        return rms
+        return float(np.sqrt(np.mean(d * d)))
 
     def _prior_sample(self) -> np.ndarray:
         """At most `prior_points` of the prior's surface samples (unit box), an even stride, cached."""
