@@ -102,9 +102,11 @@ class OracleMaskEstimator:
             raise ObjectNotFoundError(f"oracle mask: {self.target!r} is not visible")
         return self.estimator.estimate(frame, prompt, prior=prior, mask=oracle)
 
-    def estimate_all(self, frame, prompt, prior=None, max_objects=None):
+    def estimate_all(self, frame, prompt, prior=None, max_objects=None, min_score_ratio=0.0):
         if not self._is_target(prompt):
-            return self.estimator.estimate_all(frame, prompt, prior=prior, max_objects=max_objects)
+            return self.estimator.estimate_all(
+                frame, prompt, prior=prior, max_objects=max_objects, min_score_ratio=min_score_ratio
+            )
         try:
             return [self.estimate(frame, prompt, prior=prior)]
         except ObjectNotFoundError:

@@ -213,9 +213,18 @@ class ProMPose:
         return estimates[0]
 
     def estimate_all(
-        self, frame: RGBDFrame, prompt: str, prior: ShapePrior | None = None, max_objects: int | None = None
+        self,
+        frame: RGBDFrame,
+        prompt: str,
+        prior: ShapePrior | None = None,
+        max_objects: int | None = None,
+        min_score_ratio: float = 0.0,
     ) -> list[Estimate]:
-        """Estimates of the best `max_objects` candidates, best first; an empty list when nothing matches."""
+        """Estimates of the best `max_objects` candidates, best first; an empty list when nothing matches.
+
+        `min_score_ratio`: candidates whose grounding score is below this fraction of the best candidate's are
+        not fitted (a caller that drops them anyway saves their fit, ~0.3 s each on 2 cores).
+        """
         t_total = time.perf_counter()
         prompt = _check_prompt(prompt)
         frame = _check_frame(frame)
@@ -223,7 +232,11 @@ class ProMPose:
         grounding = self.grounder.ground(frame.rgb, frame.depth_m, frame.intrinsics, prompt)
         grounding_ms = _ms(t0)
         estimates: list[Estimate] = []
-        for candidate in grounding.candidates[: max_objects or self.config.max_objects]:
+        candidates = grounding.candidates[: max_objects or self.config.max_objects]
+        if candidates:
+            floor = min_score_ratio * float(candidates[0].score)
+            candidates = tuple(c for c in candidates if float(c.score) >= floor)
+        for candidate in candidates:
             points = back_project(frame.depth_m, frame.intrinsics, mask=candidate.mask)
             if len(points) < self.config.min_points:
                 continue

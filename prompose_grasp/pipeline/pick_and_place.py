@@ -267,7 +267,8 @@ class PickAndPlace:
             method opens only as wide as each grasp needs (`PickConfig.open_margin_m`); otherwise fully.
         camera: a fixed (or any calibrated) camera whose frames carry `T_base_cam`.
         estimator: `ProMPose` (or anything with `estimate(frame, prompt)` and `track(frames, prompt)`;
-            `estimate_all(frame, prompt, max_objects=)` when present gives the alternative candidates).
+            `estimate_all(frame, prompt, max_objects=, min_score_ratio=)` when present gives the alternative
+            candidates).
         robot_model: the arm's `RobotModel` with the gripper's tcp offset.
         gripper_kind: "parallel_jaw" or "suction".
         place_targets: {kind: PlaceTarget} fixtures for place commands ("bin", "table", "pallet", "conveyor").
@@ -478,7 +479,11 @@ class PickAndPlace:
                 ests = [list(self.estimator.track(frames, prompt))[-1]]
             elif hasattr(self.estimator, "estimate_all") and self.config.candidates > 1:
                 n = self.config.candidates
-                ests = list(self.estimator.estimate_all(frames[0], prompt, max_objects=n))
+                ests = list(
+                    self.estimator.estimate_all(
+                        frames[0], prompt, max_objects=n, min_score_ratio=self.config.candidate_ratio
+                    )
+                )
                 if not ests:
                     raise ObjectNotFoundError(f"no object in the frame matches {prompt!r}")
             else:

@@ -77,6 +77,19 @@ def test_user_mask_skips_grounding_and_keeps_the_object(estimator, frame, scene)
         estimator.estimate(frame, "box", mask=np.zeros_like(mask))
 
 
+def test_estimate_all_fits_only_candidates_near_the_best_score(estimator, frame):
+    every = estimator.estimate_all(frame, "the can", max_objects=3)
+    scores = [e.score for e in every]
+    assert len(every) == 3 and scores == sorted(scores, reverse=True)
+    # A ratio between the 2nd and 3rd candidates' share of the best keeps exactly the first two, fitted the
+    # same (the fit is deterministic given the candidate).
+    ratio = 0.5 * (scores[1] + scores[2]) / scores[0]
+    near = estimator.estimate_all(frame, "the can", max_objects=3, min_score_ratio=ratio)
+    assert [e.score for e in near] == scores[:2]
+    for a, b in zip(near, every):
+        np.testing.assert_array_equal(a.pose.t, b.pose.t)
+
+
 def test_bad_input_is_refused_with_clear_errors(estimator, frame):
     with pytest.raises(InvalidInputError, match="prompt"):
         estimator.estimate(frame, "   ")

@@ -226,7 +226,7 @@ class TwoCandidates(OracleEstimator):
     """Two candidates for the prompt: the best match (score 0.84, 6 cm tall) and, 90 % as good, a taller
     object (score 0.78, 10 cm tall: another thing behind it)."""
 
-    def estimate_all(self, frame, prompt, max_objects=None):
+    def estimate_all(self, frame, prompt, max_objects=None, min_score_ratio=0.0):
         best = self.estimate(frame, prompt)
         best.score = 0.84
         other = OracleEstimator(t_base=(-0.45, -0.15, 0.05), size=(0.05, 0.10, 0.06)).estimate(frame, prompt)
@@ -246,7 +246,7 @@ def test_candidate_order_picks_the_best_match_or_the_highest_top(order, y_expect
 class TallOther(OracleEstimator):
     """The best match (score 0.84, a 6 cm box) and, 90 % as good, a box 50 cm tall (another thing)."""
 
-    def estimate_all(self, frame, prompt, max_objects=None):
+    def estimate_all(self, frame, prompt, max_objects=None, min_score_ratio=0.0):
         best = self.estimate(frame, prompt)
         best.score = 0.84
         other = OracleEstimator(t_base=(-0.45, -0.15, 0.25), size=(0.05, 0.5, 0.06)).estimate(frame, prompt)
