@@ -189,7 +189,7 @@ def _build_scene(rng: np.random.Generator, categories: Sequence[str], config: Da
     from sim.objects import make_object
     from sim.world import SceneBuilder, footprint_radius_m, random_appearance, sample_upright_placements
 
-    b = SceneBuilder("dataset_scene", msaa_samples=0, shadow_size=1024)
+    b = SceneBuilder("dataset_scene")  # the default sensor look (no MSAA, 1024 px shadows)
     b.add_floor()
     b.add_skybox(top_rgb=tuple(rng.uniform(0.4, 0.9, 3)), bottom_rgb=tuple(rng.uniform(0.05, 0.3, 3)))
     size = (float(rng.uniform(1.0, 1.6)), float(rng.uniform(0.7, 1.0)))
