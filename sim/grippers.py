@@ -73,6 +73,9 @@ _FINGER_KP = 2000.0  # [N/m] finger servo stiffness
 # the pads chatter against a held object under the implicit integrator, and the object creeps down.
 _FINGER_KV = 100.0
 _OPEN_FORCE_N = 100.0  # force limit while opening [N]
+#: A finger standing still with its target this far ahead has stalled on something [m]: a finger moving at
+#: the 0.1 m/s closing speed trails its target by v kv / kp = 5 mm, and 5 mm of servo error is 10 N.
+_STALL_LAG_M = 0.005
 
 
 def _robot_geom(body, name: str, **kwargs):
@@ -119,7 +122,7 @@ def add_parallel_jaw(
         finger.ipos = [0.0, sign * (pt + finger_t / 2.0), g.finger_length_m / 2.0]
         finger.inertia = [g.finger_mass_kg * g.finger_length_m**2 / 12.0] * 3
         finger.explicitinertial = True
-        finger.add_joint(
+        joint = finger.add_joint(
             name=f"finger_{side}_joint",
             type=mujoco.mjtJoint.mjJNT_SLIDE,
             axis=[0.0, sign, 0.0],
@@ -128,6 +131,11 @@ def add_parallel_jaw(
             armature=0.02,  # reflected inertia of the drive [kg]; also keeps the stiff loop stable at 2 ms
             damping=1.0,
         )
+        # A hard stop at closed (and at open): MuJoCo's default limit (time constant 20 ms, impedance
+        # 0.9-0.95) let a finger pushing with 60 N sink 10 mm past 0, so jaws closed on nothing read -20 mm
+        # (a 2F-85 stops at 0). The pads' time constant and impedance up to 0.999: 0.2 mm at 60 N.
+        joint.solref_limit = list(_PAD_SOLREF)
+        joint.solimp_limit = [0.99, 0.999, 0.001, 0.5, 2.0]
         _robot_geom(finger, f"finger_{side}_plate", type=mujoco.mjtGeom.mjGEOM_BOX,
                     size=[pw / 2.0 + g.finger_width_margin_m, finger_t / 2.0, g.finger_length_m / 2.0],
                     pos=[0.0, sign * (pt + finger_t / 2.0), g.finger_length_m / 2.0],
@@ -266,17 +274,27 @@ class ParallelJawGripper(_SimGripperBase):
         gripper_bodies = [m.body(n).id for n in ("gripper_base", "finger_left", "finger_right")]
         self._gripper_bodies = set(gripper_bodies)
 
-    def _drive(self, q_ramp_end: float, q_final: float, force_n: float) -> None:
-        """Ramp both finger targets from where they are to `q_ramp_end` at the closing speed, then set them
-        to `q_final`, with force limit `force_n` [N]; step until the fingers stop."""
+    def _drive(self, q_final: float, force_n: float) -> None:
+        """Ramp both finger targets from where they are to `q_final` at the closing speed, with force limit
+        `force_n` [N]; step until the fingers stop.
+
+        The target moves at the closing speed all the way (a 2F-85 closes at its set speed until it meets
+        the object): a target that jumped ahead would slam the pads into the object at the full force (the
+        pads then hit a paper cup's 2 mm wall at ~1 m/s and went through it). The ramp ends early once both
+        fingers have stalled against something (still, with the target `_STALL_LAG_M` ahead): the target
+        then goes to `q_final` at once, and the stalled pads push with `force_n` without any impact."""
         m, d = self.world.model, self.world.data
         m.actuator_forcerange[self._act] = [-force_n, force_n]
         start = d.ctrl[self._act].copy()
         step_m = self.geometry.close_speed_m_s * m.opt.timestep
-        n = int(np.ceil(np.max(np.abs(q_ramp_end - start)) / step_m))
+        n = int(np.ceil(np.max(np.abs(q_final - start)) / step_m))
         for k in range(1, n + 1):
-            d.ctrl[self._act] = start + np.clip(q_ramp_end - start, -k * step_m, k * step_m)
+            d.ctrl[self._act] = start + np.clip(q_final - start, -k * step_m, k * step_m)
             self.world.step(1)
+            if k % 5 == 0 and self._fingers_still():
+                past = np.abs(d.ctrl[self._act] - self.world.data.qpos[self._qadr])
+                if np.all(past >= min(force_n / _FINGER_KP, _STALL_LAG_M)):
+                    break
         d.ctrl[self._act] = q_final
         self.world.step(10)
         self._step_until(self._fingers_still, 1.0)
@@ -287,7 +305,7 @@ class ParallelJawGripper(_SimGripperBase):
     def open(self) -> None:
         self._require()
         half = self.geometry.stroke_m / 2.0
-        self._drive(half, half, _OPEN_FORCE_N)
+        self._drive(half, _OPEN_FORCE_N)
 
     def open_to(self, width_m: float) -> None:
         """Open (or close, with the opening force) to a pad-face distance of `width_m` [m], within the stroke:
@@ -297,7 +315,7 @@ class ParallelJawGripper(_SimGripperBase):
         if not (math.isfinite(w) and 0.0 <= w <= self.geometry.stroke_m + 1e-9):
             stroke = self.geometry.stroke_m
             raise InvalidInputError(f"opening must be within [0, {stroke}] m, got {width_m!r}")
-        self._drive(w / 2.0, w / 2.0, _OPEN_FORCE_N)
+        self._drive(w / 2.0, _OPEN_FORCE_N)
 
     def close(self, force: float) -> bool:
         self._require()
@@ -308,7 +326,7 @@ class ParallelJawGripper(_SimGripperBase):
             )
         # Past the closed position by more than force / kp: a finger stopped anywhere by an object pushes
         # with the saturated servo force, i.e. exactly `force`.
-        self._drive(0.0, -(float(force) / _FINGER_KP + 0.005), float(force))
+        self._drive(-(float(force) / _FINGER_KP + 0.005), float(force))
         return self.grasp_detected()
 
     def _pad_contacts(self) -> dict[int, set[int]]:

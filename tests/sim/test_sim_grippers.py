@@ -115,12 +115,52 @@ def test_parallel_jaw_closes_on_nothing_and_checks_force():
     with world, ParallelJawGripper(world) as gripper:
         assert not gripper.close(20.0)  # nothing between the jaws (the arm is at home, high above)
         assert gripper.width() < 1e-3  # 1 mm: closed up to contact softness
+        # The end stop at 0 holds (it let each finger sink 10 mm past it at 60 N: the jaws read -20 mm).
+        gripper.open()
+        gripper.close(235.0)  # the full force
+        assert gripper.width() > -1e-3  # 1 mm: the stop's softness at 235 N (0.6 mm measured)
         with pytest.raises(InvalidInputError, match="235"):
             gripper.close(500.0)
         gripper.open()
         assert gripper.width() == pytest.approx(0.085, abs=1e-3)
     with pytest.raises(InvalidInputError, match="suction"):
         SuctionGripper(world)
+
+
+def test_parallel_jaw_pinches_a_paper_cup_wall_and_does_not_pass_through_it():
+    """A 15 g paper cup with a 2 mm wall, pinched top-down across the wall 25 mm below the top at 60 N: the
+    pads stop on the wall (the target used to jump ahead at the end of the closing ramp and slam the pads
+    into the wall at ~1 m/s; they went through it and the cup stuck on the crossed fingers), the cup rises
+    with the hand, and it drops when the jaws open."""
+    rb, rt, h, t = 0.028, 0.039, 0.117, 0.002
+    params = {"bottom_radius_m": rb, "top_radius_m": rt, "height_m": h, "wall_m": t}
+    world = _world_with("parallel_jaw", "cup", params, 0.015)
+    with world, _fast_arm(world) as arm, ParallelJawGripper(world) as gripper:
+        p_cup = _T_base_obj(world)[:3, 3]  # the amodal box centre: on the axis, at half height
+        depth = 0.025
+        # The wall's middle at that depth: the outer face's radius shrinks linearly from rt at the top
+        # (the base's thickening is far below), the inner face is t inside it.
+        r_mid = rt - (rt - rb) * depth / h - t / 2.0
+        # R_DOWN closes along base y: the pads straddle the wall on the cup's +y side.
+        T_grasp = make_T(R_DOWN, p_cup + np.array([0.0, r_mid, h / 2.0 - depth]))
+        gripper.open_to(0.052)  # the rim grasp's opening: 25 mm each side of the wall
+        T_pre = _approach(arm, T_grasp, 0.12)
+        assert gripper.close(60.0)
+        # A rigid wall: the jaws stop at its thickness or wider. The inner pad's flat 22 mm face meets the
+        # concave inner wall (radius ~34 mm) at its edges first, so it stops up to its sagitta r - sqrt(r^2 -
+        # 11^2) = 1.8 mm short; 0.5 mm below t: pad and wall softness; 1 mm above: the wall's 24 flat sectors.
+        r_in = r_mid - t / 2.0
+        sagitta = r_in - np.sqrt(r_in**2 - 0.011**2)
+        assert t - 5e-4 <= gripper.width() <= t + 2.0 * sagitta + 1e-3
+        cup = world.object("obj").body_id
+        assert gripper.held_body() == cup
+        arm.move_linear(T_pre, 0.1, 0.5)
+        lifted = _T_base_obj(world)[2, 3] - p_cup[2]
+        assert lifted == pytest.approx(0.12, abs=0.01)  # 1 cm: the light cup pivots a little in the pinch
+        gripper.open()
+        world.step(250)  # 0.5 s: it has fallen
+        assert gripper.held_body() is None
+        assert _T_base_obj(world)[2, 3] - p_cup[2] < 0.02  # back down (2 cm: it may land tilted on the rim)
 
 
 def test_suction_lifts_a_carton_from_its_top_face_and_releases_it():
