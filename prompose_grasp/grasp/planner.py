@@ -25,6 +25,7 @@ Raises `NoFeasibleGrasp` with the per-reason counts when nothing passes.
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections import Counter
 from collections.abc import Sequence
@@ -64,6 +65,8 @@ log = logging.getLogger(__name__)
 #: Two IK solutions are on the same branch, for the pre-grasp and retreat poses, within this joint distance
 #: [rad]: a 10 cm tcp move changes no joint by more than ~0.5 rad away from singularities.
 _SAME_BRANCH_RAD = 1.0
+#: ... so a longer line (a lift above a tall object) is followed in steps of at most this [m].
+_BRANCH_STEP_M = 0.10
 
 
 def _gripper(gripper) -> ParallelJawGeometry | SuctionCupGeometry:
@@ -348,13 +351,13 @@ def plan_grasps(
         T_pre[:, :3, 3] -= cfg.approach_offset_m * T_grasp[:, :3, 2]
         T_ret = T_grasp.copy()
         T_ret[:, :3, 3] += cfg.lift_m * up
-        # Pre-grasp and retreat on the grasp's branch: the solution nearest the grasp's configuration.
-        seeds = np.vstack([q_all[idx], q_all[idx]])
-        q_near, ok_near, _ = ik_nearest_batch(
-            robot.spec, np.concatenate([T_pre, T_ret]) @ T_tcp_flange, seeds, lower, upper
-        )
-        near_ok = ok_near & (
-            np.linalg.norm(np.nan_to_num(q_near - seeds, nan=np.inf), axis=1) <= _SAME_BRANCH_RAD
+        # Pre-grasp and retreat on the grasp's branch: the lines from the grasp to them, followed in steps.
+        near_ok = _lines_on_branch(
+            robot,
+            np.concatenate([T_grasp, T_grasp]),
+            np.concatenate([T_pre, T_ret])[:, :3, 3] - np.concatenate([T_grasp, T_grasp])[:, :3, 3],
+            np.vstack([q_all[idx], q_all[idx]]),
+            T_tcp_flange,
         )
         n_chunk = len(idx)
         approach_ok = near_ok[:n_chunk] & near_ok[n_chunk:]
@@ -396,6 +399,27 @@ def plan_grasps(
         raise err
     log.debug("plan_grasps: %d grasps of %d candidates; rejected %s", len(grasps), n, dict(rejected))
     return GraspPlan(tuple(grasps), dict(rejected), n, n_unchecked, timings)
+
+
+def _lines_on_branch(
+    robot: RobotModel, T_start: np.ndarray, delta: np.ndarray, q_start: np.ndarray, T_tcp_flange: np.ndarray
+) -> np.ndarray:
+    """(N,) True where the tcp line from `T_start` (N, 4, 4) moved by `delta` (N, 3) [m] stays on the branch
+    of `q_start` (N, 6): IK at every `_BRANCH_STEP_M` along it, each seeded with the solution before and
+    within `_SAME_BRANCH_RAD` of it. (One jump over a long line is no test: a 34 cm lift near the base
+    turns the elbow by more than 1 rad without leaving its branch.)"""
+    lower, upper = robot.joint_limits
+    length = float(np.max(np.linalg.norm(delta, axis=1))) if len(delta) else 0.0
+    n = max(1, math.ceil(length / _BRANCH_STEP_M - 1e-9))
+    q = np.array(q_start, dtype=np.float64)
+    ok = np.ones(len(q), dtype=bool)
+    for k in range(1, n + 1):
+        T = np.array(T_start, dtype=np.float64)
+        T[:, :3, 3] += delta * (k / n)
+        q_k, ok_k, _ = ik_nearest_batch(robot.spec, T @ T_tcp_flange, q, lower, upper)
+        ok &= ok_k & (np.linalg.norm(np.nan_to_num(q_k - q, nan=np.inf), axis=1) <= _SAME_BRANCH_RAD)
+        q = np.where(ok[:, None], q_k, q)
+    return ok
 
 
 def _free_branches(

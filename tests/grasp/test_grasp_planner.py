@@ -149,3 +149,31 @@ def test_planned_opening_fits_between_close_neighbours_where_the_full_stroke_doe
         g for g in plan_wide if np.allclose(g.approach, [0, 0, -1]) and abs(g.T_base_tcp[0, 1]) > 1 - 1e-9
     ]
     assert plan_wide.rejected.get("collision_object", 0) > plan.rejected.get("collision_object", 0)
+
+
+def test_a_long_lift_near_the_base_is_followed_on_its_branch_not_refused():
+    """A 31 cm tall bottle-sized box 29 cm from the base (seed 126): the lift clears its height (0.34 m). The
+    retreat used to be one IK jump from the grasp, refused beyond 1 rad of joint change, which a 34 cm lift
+    this near the base exceeds on the same branch (every grasp: "ik_approach"); the line is followed in
+    10 cm steps now. Known answer: each returned retreat line, solved every 5 mm from the grasp's
+    configuration, moves the joints continuously (no branch flip) to a solution at the retreat pose."""
+    target = _box("bottle", [-0.289, 0.021, 0.157], [0.056, 0.313, 0.056])
+    cfg = GraspConfig(lift_m=0.343, max_grasps=4)
+    plan = plan_grasps(target, ROBOT, JAW, [], TABLE, None, HOME_Q, cfg)
+    lower, upper = ROBOT.joint_limits
+    total = []
+    for g in plan:
+        q = g.q
+        for s in np.linspace(0.0, 1.0, 70)[1:]:  # 4.9 mm steps along the 0.343 m line
+            T = g.T_base_tcp.copy()
+            T[:3, 3] += s * (g.T_base_retreat[:3, 3] - g.T_base_tcp[:3, 3])
+            r = ROBOT.ik(T, q_seed=q, frame="tcp")
+            assert r.success
+            # 0.15 rad per 5 mm: far above the ~0.02 rad a smooth 5 mm step turns a joint here, far below
+            # a branch flip (pi/2 and more)
+            assert np.max(np.abs(r.q - q)) < 0.15
+            assert np.all(r.q >= lower) and np.all(r.q <= upper)
+            q = r.q
+        np.testing.assert_allclose(ROBOT.fk_tcp(q), g.T_base_retreat, atol=1e-9)  # reached the retreat
+        total.append(float(np.linalg.norm(q - g.q)))
+    assert max(total) > 1.0  # the lift turns the joints by more than the old one-jump limit
