@@ -38,9 +38,10 @@ from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import back_project, depth_to_point_map
 from prompose_grasp.geometry.se3 import invert_T, so3_exp, so3_log
 from prompose_grasp.perception.estimator import Estimate, plane_vector
-from prompose_grasp.perception.fit import FitResult, fit_pose
+from prompose_grasp.perception.fit import FitResult, SceneView, fit_pose
 from prompose_grasp.perception.grounding import SupportPlane
 from prompose_grasp.perception.priors import ShapePrior
+from prompose_grasp.perception.priors.library import round_body_axis
 from prompose_grasp.robot.interfaces import RGBDFrame
 
 if TYPE_CHECKING:
@@ -240,9 +241,16 @@ class Tracker:
         ):
             self._refit_view = view
             self.refits += 1
-            cold = self._refit(points, support)
-            if self._score(points, old_views, cold, support) < cfg.refit_gain * self._score(
-                points, old_views, fit, support
+            # the re-fit sees this frame as the first frame's fit did: every pixel, and round a mug's body
+            # wherever its handle is (near the tracked pose's surface only, a handle that the track has
+            # on the wrong side would be cut away, the very points that can correct it)
+            refit_mask, refit_points = self._select(frame, pred, plane, stride=1, any_turn=True)
+            if len(refit_points) < cfg.min_points:
+                refit_mask, refit_points = mask, points
+            scene = SceneView(frame.depth_m, frame.intrinsics, refit_mask)
+            cold = self._refit(refit_points, support, scene)
+            if self._score(refit_points, old_views, cold, support, scene) < cfg.refit_gain * self._score(
+                refit_points, old_views, fit, support, scene
             ):
                 fit, jumped, rms = cold, True, math.nan
                 self.prior = cold.prior or self.prior
@@ -269,15 +277,16 @@ class Tracker:
             support_plane=plane,
         )
 
-    def _refit(self, points: np.ndarray, support: np.ndarray | None) -> FitResult:
-        """A cold multi-hypothesis fit of this frame's points (the estimator's own fit settings).
+    def _refit(self, points: np.ndarray, support: np.ndarray | None, scene: SceneView | None) -> FitResult:
+        """A cold multi-hypothesis fit of this frame's points (the estimator's own fit settings, and the
+        frame's depth image and selection as its `SceneView`, as the first frame's fit had).
 
         Tried and measured (docs/fit.md, temporal refinement): a warm fit of the frame alone from the
         tracked pose and its quarter turns costs a third of this and lost ~5 points on the benchmark's
         tracked rows; the cold fit without its 2048-point stage saved no measurable time.
         """
         assert self.prior is not None
-        return fit_pose(points, self.prior, self.estimator.fit_config, support_plane_cam=support)
+        return fit_pose(points, self.prior, self.estimator.fit_config, support_plane_cam=support, scene=scene)
 
     def _fused_views(self, frame: RGBDFrame, pred: Pose9D) -> list[np.ndarray]:
         """The window's views in this camera frame."""
@@ -295,7 +304,12 @@ class Tracker:
         return pose.R.T @ d
 
     def _score(
-        self, points: np.ndarray, old_views: np.ndarray, fit: FitResult, support: np.ndarray | None
+        self,
+        points: np.ndarray,
+        old_views: np.ndarray,
+        fit: FitResult,
+        support: np.ndarray | None,
+        scene: SceneView | None = None,
     ) -> float:
         """How well a fitted pose explains the window: the robust L_geo of this frame's points (both
         directions, this camera's visibility; no iterations) plus the Huber mean distance of the earlier
@@ -304,7 +318,8 @@ class Tracker:
         cfg = replace(self.estimator.fit_config, n_points_warm=self.config.compare_points, warm_iterations=0)
         prior = fit.prior or self.prior
         assert prior is not None
-        score = fit_pose(points, prior, cfg, init=fit.pose, support_plane_cam=support).robust_loss
+        fitted = fit_pose(points, prior, cfg, init=fit.pose, support_plane_cam=support, scene=scene)
+        score = fitted.robust_loss
         if len(old_views):
             surface = fit.pose.points_to_camera(prior.points[:: max(1, len(prior.points) // 2048)])
             d, _ = cKDTree(surface).query(old_views, k=1)
@@ -349,12 +364,35 @@ class Tracker:
         return back_project(frame.depth_m, frame.intrinsics, mask=mask)
 
     def _select(
-        self, frame: RGBDFrame, pred: Pose9D, plane: SupportPlane | None
+        self,
+        frame: RGBDFrame,
+        pred: Pose9D,
+        plane: SupportPlane | None,
+        stride: int | None = None,
+        any_turn: bool = False,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Pixels (H, W) bool and their (N, 3) points lying in the predicted box grown by the margin, off the
-        support plane. Only the image rectangle of the grown box is back-projected."""
+        support plane, near the posed prior's surface. Only the image rectangle of the grown box is
+        back-projected, every `stride`-th pixel (default `TrackerConfig.pixel_stride`).
+
+        `any_turn`: for a prior with a round body (`priors.library.round_body_axis`: a mug), the points the
+        prior explains at any turn about the body's axis, wherever its handle is: the box is widened to the
+        circle the handle sweeps, and the surface test compares (distance from the axis, height) with the
+        prior's own. A track with the handle on the wrong side keeps the handle's points this way.
+        """
         K = frame.intrinsics
-        grown = Pose9D(pred.R, pred.t, pred.size + 2.0 * self.config.roi_margin_m)
+        margin = self.config.roi_margin_m
+        axis = round_body_axis(self.prior) if any_turn and self.prior is not None else None
+        box, axis_obj, profile = pred, np.zeros(3), None
+        if axis is not None:
+            axis_obj = np.array([axis[0] * pred.size[0], 0.0, axis[1] * pred.size[2]])  # object frame [m]
+            metric = self._prior_sample() * pred.size
+            profile = np.column_stack(
+                [np.hypot(metric[:, 0] - axis_obj[0], metric[:, 2] - axis_obj[2]), metric[:, 1]]
+            )
+            reach = float(profile[:, 0].max())
+            box = Pose9D(pred.R, pred.t + pred.R @ axis_obj, np.array([2 * reach, pred.size[1], 2 * reach]))
+        grown = Pose9D(box.R, box.t, box.size + 2.0 * margin)
         corners = grown.corners()
         mask = np.zeros((K.height, K.width), dtype=bool)
         if np.any(corners[:, 2] <= 1e-3):
@@ -367,7 +405,7 @@ class Tracker:
             return mask, np.zeros((0, 3))
         # The crop's own camera: the same focal lengths, the principal point shifted by the crop's corner.
         crop = CameraIntrinsics(K.fx, K.fy, K.cx - x0, K.cy - y0, width=x1 - x0 + 1, height=y1 - y0 + 1)
-        k = self.config.pixel_stride
+        k = self.config.pixel_stride if stride is None else stride
         if k > 1:  # every k-th pixel: the crop's camera with focal lengths and principal point divided by k
             w, h = math.ceil(crop.width / k), math.ceil(crop.height / k)
             crop = CameraIntrinsics(crop.fx / k, crop.fy / k, crop.cx / k, crop.cy / k, width=w, height=h)
@@ -379,8 +417,13 @@ class Tracker:
             inside &= plane.height_m(pts) > self.config.plane_clearance_m
         if self.prior is not None and np.any(inside):
             idx = np.flatnonzero(inside)
-            surface = cKDTree(pred.points_to_camera(self._prior_sample()))
-            d, _ = surface.query(pts[idx], k=1, distance_upper_bound=self.config.surface_margin_m)
+            if profile is None:
+                surface = cKDTree(pred.points_to_camera(self._prior_sample()))
+                d, _ = surface.query(pts[idx], k=1, distance_upper_bound=self.config.surface_margin_m)
+            else:
+                local = (pts[idx] - pred.t) @ pred.R - axis_obj
+                q = np.column_stack([np.hypot(local[:, 0], local[:, 2]), local[:, 1]])
+                d, _ = cKDTree(profile).query(q, k=1, distance_upper_bound=self.config.surface_margin_m)
             inside[idx[~np.isfinite(d)]] = False
         rows, cols = np.nonzero(keep)
         for dy in range(k):  # each sampled pixel stands for its k x k block
