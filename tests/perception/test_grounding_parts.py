@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -171,6 +172,75 @@ def test_shape_families_of_constructed_point_sets():
     assert size_class(np.array([0.05, 0.04, 0.06])) == "small"
     assert size_class(np.array([0.12, 0.04, 0.06])) == "medium"
     assert size_class(np.array([0.3, 0.2, 0.1])) == "large"
+
+
+#: Camera over the origin of the support-plane frame, 0.7 m above the table (the tabletop's front camera).
+_CAM = np.array([0.0, 0.0, 0.7])
+
+
+def _along_rays(P: np.ndarray, sigma: float, rng) -> np.ndarray:
+    """(N, 3) points moved along their camera rays by N(0, sigma) [m]: axial depth noise."""
+    ray = (P - _CAM) / np.linalg.norm(P - _CAM, axis=1, keepdims=True)
+    return P + rng.normal(0.0, sigma, (len(P), 1)) * ray
+
+
+def _visible_box(a: float, b: float, h: float, yaw: float, centre: np.ndarray, rng) -> np.ndarray:
+    """The faces of an upright a x b x h box (yaw about the up axis) that face the camera, and its top."""
+    R = np.array([[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]])
+    parts = []
+    for normal, half, length in (
+        ((1, 0), a / 2, b),
+        ((-1, 0), a / 2, b),
+        ((0, 1), b / 2, a),
+        ((0, -1), b / 2, a),
+    ):
+        n = R @ np.array(normal, dtype=float)
+        mid = centre + n * half
+        if n @ (_CAM[:2] - mid) > 0:
+            k = int(400 * length)  # ~150 side points in all, as many as the tabletop's tea box has
+            t = rng.uniform(-length / 2, length / 2, k)
+            parts.append(np.column_stack([mid + t[:, None] * [-n[1], n[0]], rng.uniform(0, h, k)]))
+    top = rng.uniform(-0.5, 0.5, (200, 2)) * [a, b] @ R.T + centre
+    return np.concatenate([*parts, np.column_stack([top, np.full(200, h)])])
+
+
+def _visible_cylinder(r: float, h: float, centre: np.ndarray, rng) -> np.ndarray:
+    """The half of an upright cylinder's side that faces the camera, and its top disc."""
+    ang = math.atan2(-centre[1], -centre[0]) + rng.uniform(-math.pi / 2, math.pi / 2, 150)
+    side = np.column_stack([centre + r * np.column_stack([np.cos(ang), np.sin(ang)]), rng.uniform(0, h, 150)])
+    rr, aa = r * np.sqrt(rng.uniform(0, 1, 200)), rng.uniform(0, 2 * math.pi, 200)
+    top = centre + np.column_stack([rr * np.cos(aa), rr * np.sin(aa)])
+    return np.concatenate([side, np.column_stack([top, np.full(200, h)])])
+
+
+def _measured_extent(P: np.ndarray) -> np.ndarray:
+    """Footprint length, width (minimum-area rectangle), 98th-percentile height: as the grounder measures."""
+    a, b = sorted(cv2.minAreaRect(P[:, :2].astype(np.float32))[1], reverse=True)
+    return np.array([a, b, np.percentile(P[:, 2], 98)])
+
+
+@pytest.mark.parametrize("sigma", [0.0, 0.007])
+def test_a_box_corner_and_a_can_through_depth_noise(sigma):
+    """A tea box (12 x 7 x 8.5 cm) seen corner-on and a soda can (r 3.3 cm, 12 cm tall) ~1 m from the camera.
+
+    sigma 7 mm is the RealSense-like preset's axial noise at the tabletop's 1.1-1.2 m: a side is then a band
+    ~1.5 cm thick. The box is turned 30-60 deg from square-on (two faces seen: the corner view; a square-on
+    box shows one flat face, which a circle can follow too: the rule's known weak case, module docstring).
+    Every one of the draws must be right: over 60 draws the rule made no error at 7 mm, while the former rule
+    (circle against the enclosing rectangle) read 6 of these boxes "cylinder" at 7 mm and 25 noise-free.
+    """
+    for i in range(8):
+        rng = np.random.default_rng(i)
+        centre = np.array([rng.uniform(-0.2, 0.3), rng.uniform(0.9, 1.2)])
+        view = math.atan2(centre[1], centre[0])
+        box = _along_rays(
+            _visible_box(0.12, 0.07, 0.085, view + rng.uniform(math.pi / 6, math.pi / 3), centre, rng),
+            sigma,
+            rng,
+        )
+        can = _along_rays(_visible_cylinder(0.033, 0.12, centre, rng), sigma, rng)
+        assert shape_family(box, _measured_extent(box)) == "box", i
+        assert shape_family(can, _measured_extent(can)) == "cylinder", i
 
 
 @pytest.mark.parametrize(

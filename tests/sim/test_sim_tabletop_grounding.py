@@ -1,7 +1,8 @@
 """Grounding on the tabletop scene's front camera (the pick benchmark's view, RealSense-like noise): the
 cases `bench-pick` failed on because the soda can, seen through the depth noise at ~1 m, was described as
-"box-shaped" (the red mug then outranked it for "soda can", and it came close to the tea box for "tea box").
-The ground-truth segmentation is read only to check which object the best mask covers."""
+"box-shaped" (the red mug then outranked it for "soda can", and it came close to the tea box for "tea box":
+seeds 25, 29, 31, 39) or the tea box as "cylindrical" (it then tied the can for "tea box": seed 15). The
+ground-truth segmentation is read only to check which object the best mask covers."""
 
 from __future__ import annotations
 
@@ -22,7 +23,8 @@ def grounder():
 
 @pytest.mark.sim
 @pytest.mark.parametrize(("seed", "prompt", "name"), [(25, "soda can", "can"), (31, "soda can", "can"),
-                                                      (29, "tea box", "box")])  # fmt: skip
+                                                      (39, "soda can", "can"), (29, "tea box", "box"),
+                                                      (15, "tea box", "box")])  # fmt: skip
 def test_the_named_object_is_the_best_candidate(grounder, seed, prompt, name):
     from sim.scene_file import build_scene, load_scene
 
@@ -36,3 +38,5 @@ def test_the_named_object_is_the_best_candidate(grounder, seed, prompt, name):
     assert np.mean(oracle_ids[best.mask] == ids[name]) > 0.8
     can = next(c for c in result.candidates if np.mean(oracle_ids[c.mask] == ids["can"]) > 0.8)
     assert can.attributes.shape_family == "cylinder"
+    if name == "box":
+        assert best.attributes.shape_family == "box"
