@@ -118,13 +118,27 @@ def test_parallel_jaw_closes_on_nothing_and_checks_force():
         # The end stop at 0 holds (it let each finger sink 10 mm past it at 60 N: the jaws read -20 mm).
         gripper.open()
         gripper.close(235.0)  # the full force
-        assert gripper.width() > -1e-3  # 1 mm: the stop's softness at 235 N (0.6 mm measured)
+        assert gripper.width() > -1e-3  # 1 mm: the stop's softness at 235 N
         with pytest.raises(InvalidInputError, match="235"):
             gripper.close(500.0)
         gripper.open()
         assert gripper.width() == pytest.approx(0.085, abs=1e-3)
     with pytest.raises(InvalidInputError, match="suction"):
         SuctionGripper(world)
+
+
+def test_parallel_jaw_pinches_a_light_box_to_its_width():
+    """A 15 g box 30 mm wide pinched at 60 N: the jaws read its width (MuJoCo's soft contacts are scaled by
+    the effective mass, so a light object's used to give 1.0 mm under 60 N; thin walls then slipped out)."""
+    world = _world_with("parallel_jaw", "box", {"width_m": 0.03, "height_m": 0.06, "depth_m": 0.03}, 0.015)
+    with world, _fast_arm(world) as arm, ParallelJawGripper(world) as gripper:
+        p_box = _T_base_obj(world)[:3, 3]
+        _approach(arm, make_T(R_DOWN, p_box + _z(0.01)), 0.12)
+        assert gripper.close(60.0)
+        # 0.5 mm: the pads' and the box's contact softness at 60 N on 15 g (0.3 mm measured)
+        assert gripper.width() == pytest.approx(0.03, abs=5e-4)
+        for pad, f in _pad_normal_forces(world).items():  # 5 %: contact dynamics
+            assert f == pytest.approx(60.0, rel=0.05), pad
 
 
 def test_parallel_jaw_pinches_a_paper_cup_wall_and_does_not_pass_through_it():
