@@ -67,11 +67,15 @@ ROBOT_CONTYPE, ROBOT_CONAFFINITY = 2, 1
 
 _PAD_FRICTION = (1.0, 0.005, 0.0001)  # sliding [-], torsional [m], rolling [m]: small spin/roll resistance
 _PAD_SOLREF = (0.004, 1.0)  # stiffest time constant MuJoCo allows at a 2 ms step (2 x timestep), damped
-# Impedance 0.99 at first touch rising to 0.999 within 1 mm. MuJoCo scales a soft contact's stiffness by
-# the effective mass, so on a light object it is soft in newtons: with (0.95, 0.99) a 15 g box pinched at
-# 60 N read 1.0 mm narrower than it is and a 50 g mug's 5.5 mm wall slipped out from between the pads
-# (tabletop seed 300); now 0.3 mm (0.03 mm on a 0.5 kg box).
-_PAD_SOLIMP = (0.99, 0.999, 0.001, 0.5, 2.0)
+# Impedance 0.95 at first touch (a rubber pad gives: a 15 g box pinched at 60 N reads 1.0 mm narrow) rising
+# to 0.999 at 1 mm deep (the finger behind it does not). MuJoCo scales a soft contact's stiffness by the
+# effective mass, so on a light object it is soft in newtons: with 0.99 at depth a 50 g mug's 5.5 mm wall
+# slipped out from between the pads at 60 N (tabletop seed 300). 0.99 from first touch held that but let a
+# 16 g cup squeeze out of the pinch on the lift (seeds 235, 302): the rigid flat pad then touches a curved
+# wall on lines only.
+_PAD_SOLIMP = (0.95, 0.999, 0.001, 0.5, 2.0)
+#: The finger joints' end stops: metal, stiff from the first touch.
+_STOP_SOLIMP = (0.99, 0.999, 0.001, 0.5, 2.0)
 _FINGER_KP = 2000.0  # [N/m] finger servo stiffness
 # [N s/m] finger servo damping: overdamped (critical is 28 for 0.1 kg incl. armature). Much more (~600) makes
 # the pads chatter against a held object under the implicit integrator, and the object creeps down.
@@ -139,7 +143,7 @@ def add_parallel_jaw(
         # 0.9-0.95) let a finger pushing with 60 N sink 10 mm past 0, so jaws closed on nothing read -20 mm
         # (a 2F-85 stops at 0). The pads' time constant and impedance: 0.2 mm past 0 at 60 N.
         joint.solref_limit = list(_PAD_SOLREF)
-        joint.solimp_limit = list(_PAD_SOLIMP)
+        joint.solimp_limit = list(_STOP_SOLIMP)
         _robot_geom(finger, f"finger_{side}_plate", type=mujoco.mjtGeom.mjGEOM_BOX,
                     size=[pw / 2.0 + g.finger_width_margin_m, finger_t / 2.0, g.finger_length_m / 2.0],
                     pos=[0.0, sign * (pt + finger_t / 2.0), g.finger_length_m / 2.0],
