@@ -192,6 +192,24 @@ def test_reobservation_of_an_unmoved_object_is_slipped():
     assert outcome.reason == "slipped" and "still where it stood" in outcome.message
 
 
+class SeenStretchedInTheHand(OracleEstimator):
+    """After the first estimate, the object is seen lifted in the hand but its box reaches down to the table
+    (partly hidden by the gripper): top 56 mm higher, centre only 28 mm higher (as seed 247's bottle)."""
+
+    def estimate(self, frame, prompt):
+        if self.calls == 1:
+            self.t_base = self.t_base + np.array([0.0, 0.0, 0.028])
+            self.size = (self.size[0], self.size[1] + 0.056, self.size[2])  # object +y is up (R_UP)
+        return super().estimate(frame, prompt)
+
+
+def test_reobservation_counts_a_risen_top_as_lifted():
+    # The centre moved 28 mm (< moved_min_m 35 mm) but the top rose 56 mm: the object was lifted.
+    cfg = PickConfig(reobserve=True, max_estimates=1, grasps_per_estimate=1)
+    outcome, _ = _run(estimator=SeenStretchedInTheHand(), config=cfg)
+    assert outcome.success, outcome.message
+
+
 def test_timeout():
     outcome, _ = _run(config=PickConfig(timeout_s=1e-9, reobserve=False))
     assert outcome.reason == "timeout"
