@@ -38,7 +38,7 @@ from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import back_project, depth_to_point_map
 from prompose_grasp.geometry.se3 import invert_T, so3_exp, so3_log
 from prompose_grasp.perception.estimator import Estimate, plane_vector
-from prompose_grasp.perception.fit import FitResult, SceneView, fit_pose
+from prompose_grasp.perception.fit import FitResult, SceneView, fit_pose, protrusion_points
 from prompose_grasp.perception.grounding import SupportPlane
 from prompose_grasp.perception.priors import ShapePrior
 from prompose_grasp.perception.priors.library import round_body_axis
@@ -74,8 +74,9 @@ class TrackerConfig:
             the last re-fit, the frame gets a cold multi-hypothesis fit too (`Tracker._refit`), and the better
             of it and the tracked fit (`Tracker._score`) goes on: a wrong first estimate (a mug's yaw
             with the handle hidden, a flipped box seen edge-on) is corrected once the new views
-            show what the first did not, and a laptop's screen opening is chosen again. 180 turns it off (a
-            warm start cannot jump between basins).
+            show what the first did not, and a laptop's screen opening is chosen again. A mug's handle that
+            the track does not explain starts one too, once per view (`Tracker._protrusion_missed`: a camera
+            that holds still never turns). 180 turns both off (a warm start cannot jump between basins).
         compare_points: observed points of this frame on which the two candidates are compared.
         refit_gain: the re-fit replaces the tracked fit when its score is below this times the tracked
             one's (hysteresis: the tracked fit has the window's views behind it).
@@ -164,6 +165,7 @@ class Tracker:
         self._rng = np.random.default_rng(0)
         self._prior_cache: tuple[ShapePrior, np.ndarray] | None = None
         self._refit_view: np.ndarray | None = None  # unit object -> camera direction at the last re-fit
+        self._protrusion_refit_done = False  # a re-fit for an unexplained handle ran at this view
         self.reinitialisations = 0
         self.window_restarts = 0
         self.refits = 0
@@ -196,6 +198,7 @@ class Tracker:
         self._plane = est.support_plane
         self._in_base = frame.T_base_cam is not None
         self._refit_view = self._view_direction(frame, est.pose)
+        self._protrusion_refit_done = False
         self._accept(frame, est.pose, self._observed(frame, est.mask))
         return replace(est, timings_ms=dict(est.timings_ms), frame_index=self._frame_index)
 
@@ -236,10 +239,12 @@ class Tracker:
             self.window_restarts += 1
         jumped = False
         view = self._view_direction(frame, fit.pose)
-        if self._refit_view is not None and float(view @ self._refit_view) < math.cos(
+        turned = self._refit_view is not None and float(view @ self._refit_view) < math.cos(
             math.radians(cfg.refit_angle_deg)
-        ):
+        )
+        if turned or self._protrusion_missed(frame, pred, plane):
             self._refit_view = view
+            self._protrusion_refit_done = not turned
             self.refits += 1
             # the re-fit sees this frame as the first frame's fit did: every pixel, and round a mug's body
             # wherever its handle is (near the tracked pose's surface only, a handle that the track has
@@ -276,6 +281,28 @@ class Tracker:
             frame_index=self._frame_index,
             support_plane=plane,
         )
+
+    def _protrusion_missed(self, frame: RGBDFrame, pred: Pose9D, plane: SupportPlane | None) -> bool:
+        """True when this frame shows a round body's protrusion (a mug's handle) that the prediction does
+        not explain: at least `FitConfig.handle_min_points` pixels lie near the prior turned about the
+        body's axis, outside the predicted body by `FitConfig.handle_margin_m`, and farther than
+        `surface_margin_m` from the predicted surface. Once per view (cleared when the view turns)."""
+        if self._protrusion_refit_done or self.prior is None or self.config.refit_angle_deg >= 180.0:
+            return False  # (re-fits off: `refit_angle_deg` 180)
+        axis = round_body_axis(self.prior)
+        if axis is None:
+            return False
+        _, swept = self._select(frame, pred, plane, any_turn=True)
+        fcfg = self.estimator.fit_config
+        stride2 = self.config.pixel_stride**2
+        outside = protrusion_points(pred, axis, swept, fcfg.handle_margin_m)
+        if len(outside) * stride2 < fcfg.handle_min_points:
+            return False
+        d, _ = cKDTree(pred.points_to_camera(self._prior_sample())).query(
+            outside, k=1, distance_upper_bound=self.config.surface_margin_m
+        )
+        missed = int(np.count_nonzero(~np.isfinite(d))) * stride2
+        return missed >= fcfg.handle_min_points
 
     def _refit(self, points: np.ndarray, support: np.ndarray | None, scene: SceneView | None) -> FitResult:
         """A cold multi-hypothesis fit of this frame's points (the estimator's own fit settings, and the

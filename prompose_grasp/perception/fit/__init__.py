@@ -7,6 +7,7 @@ from prompose_grasp.perception.fit.core import (
     SceneView,
     canonicalize_symmetry,
     fit_pose,
+    protrusion_points,
     visible_prior_mask,
 )
 
@@ -17,5 +18,6 @@ __all__ = [
     "SceneView",
     "canonicalize_symmetry",
     "fit_pose",
+    "protrusion_points",
     "visible_prior_mask",
 ]

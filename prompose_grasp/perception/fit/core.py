@@ -59,6 +59,7 @@ __all__ = [
     "SceneView",
     "canonicalize_symmetry",
     "fit_pose",
+    "protrusion_points",
     "visible_prior_mask",
 ]
 
@@ -872,7 +873,7 @@ def _turn_about_body(pb: _Problem, st: _State, axis_xz: np.ndarray, angle: float
     return _State(R, b, st.log_s.copy())
 
 
-def _protrusion_points(pose: Pose9D, axis_xz: np.ndarray, pts: np.ndarray, margin: float) -> np.ndarray:
+def protrusion_points(pose: Pose9D, axis_xz: np.ndarray, pts: np.ndarray, margin: float) -> np.ndarray:
     """The observed points `pts` outside the posed round body by more than `margin` [m]: points only the
     protrusion (a mug's handle) explains (`priors.library.round_body_axis`)."""
     return pts[_body_ellipse((pts - pose.t) @ pose.R, axis_xz, pose.size, margin) > 1.0]
@@ -1240,7 +1241,7 @@ def fit_pose(
     body_axis = round_body_axis(shapes[k_best]) if up is not None and cfg.handle_band_tol >= 0.0 else None
     if body_axis is not None and not warm:
         # a mug whose handle is hidden: the middle of the turns that hide it (FitConfig.handle_band_tol)
-        seen = _protrusion_points(pbx.pose(st), body_axis, pts, cfg.handle_margin_m)
+        seen = protrusion_points(pbx.pose(st), body_axis, pts, cfg.handle_margin_m)
         if len(seen) < cfg.handle_min_points:
             turned = _middle_of_flat_band(pbx, st, body_axis, cfg)
         elif cfg.handle_yaw_range_deg > 0.0:
