@@ -300,6 +300,7 @@ class PickAndPlace:
     ):
         self.arm = arm
         self.wrist_camera = wrist_camera
+        self._T_flange_wrist_cam: np.ndarray | None = None  # learned at the first wrist look
         self.gripper = gripper
         self.camera = camera
         self.estimator = estimator
@@ -780,13 +781,41 @@ class PickAndPlace:
         state: dict[str, Any],
     ) -> _Observation | None:
         """Move the wrist camera above the target (the best grasp's pre-grasp, `wrist_look_m` higher), observe
-        and estimate there; the observation with that estimate, or None (unreachable look pose, nothing seen,
-        or an estimate too far from the first: another object)."""
-        cfg = self.config
+        and estimate there; when the target is not seen from there, look once more from that pose moved
+        sideways so that the camera's optical axis runs through the target (the camera sits beside the tool:
+        along the tool's axis a target at the reach's far end lies at the image's edge, half behind the
+        fingers). The observation with the wrist's estimate, or None (no look pose, nothing seen, or an
+        estimate too far from the first: another object)."""
         T_look = np.array(grasp.T_base_pregrasp)
-        T_look[:3, 3] -= cfg.wrist_look_m * T_look[:3, 2]  # further back along the approach
+        T_look[:3, 3] -= self.config.wrist_look_m * T_look[:3, 2]  # further back along the approach
+        seen = self._look_from(T_look, grasp.q, obs, scene, cmd, timings, state)
+        if seen is not None:
+            return seen
+        T_flange_cam = self._wrist_mount()
+        if T_flange_cam is None:
+            return None
+        T_tcp_cam = invert_T(self.robot.T_flange_tcp) @ T_flange_cam
+        centred = _aim_camera(T_look, T_tcp_cam, obs.target.pose.t)
+        # Seeded with the joints now (at the first look, a few centimetres away): the nearest branch, not a
+        # turn of the wrist that costs seconds of motion.
+        return self._look_from(centred, None, obs, scene, cmd, timings, state)
+
+    def _look_from(
+        self,
+        T_look: np.ndarray,
+        q_seed: np.ndarray | None,
+        obs: _Observation,
+        scene: CollisionScene,
+        cmd: Command,
+        timings: dict[str, float],
+        state: dict[str, Any],
+    ) -> _Observation | None:
+        """Move the tcp to `T_look` (when reachable, the move free and valid), observe with the wrist camera
+        and estimate; the observation whose estimate is nearest the first (within `wrist_max_shift_m`). IK
+        is seeded with `q_seed`, or the joints now when None."""
+        cfg = self.config
         q_now = np.asarray(self.arm.joint_positions(), dtype=np.float64)
-        ik = self.robot.ik(T_look, q_seed=grasp.q, frame="tcp")
+        ik = self.robot.ik(T_look, q_seed=q_now if q_seed is None else q_seed, frame="tcp")
         if not ik.success:
             return None
         _, hit = check_path(self.robot, scene, np.array([q_now, ik.q]), self.gripper_geometry, 0.0, True)
@@ -822,12 +851,30 @@ class PickAndPlace:
             if shift <= cfg.wrist_max_shift_m and (best is None or shift < best[0]):
                 best = (shift, est, target)
         if best is None:
+            logger.info("wrist camera: no %r within %.0f mm of the first view", cmd.object_prompt,
+                        1e3 * cfg.wrist_max_shift_m)  # fmt: skip
             return None
         shift, est, target = best
         state["estimates"].append(est)
         state["T_base_cams"].append(T_base_cam)
         self._emit("estimate", f"wrist camera: the target is {1e3 * shift:.0f} mm from the first view", 0.4)
         return _Observation(obs.frame, est, target, obs.support, obs.points_base, obs.q_seen)
+
+    def _wrist_mount(self) -> np.ndarray | None:
+        """(4, 4) T_flange_cam of the wrist camera, learned once from a capture at the arm's joints now (the
+        arm stands still while the loop observes; the frame's T_base_cam is the camera's hand-eye pose
+        chained with the flange's), or None when that capture fails."""
+        if self._T_flange_wrist_cam is None and self.wrist_camera is not None:
+            try:
+                frame = self.wrist_camera.capture()
+            except CameraError as exc:
+                logger.info("wrist camera mount not learned: %s", exc)
+                return None
+            if not isinstance(frame, RGBDFrame) or frame.T_base_cam is None:
+                return None
+            T_flange_base = invert_T(self.robot.fk(self.arm.joint_positions()))
+            self._T_flange_wrist_cam = T_flange_base @ np.asarray(frame.T_base_cam, dtype=np.float64)
+        return self._T_flange_wrist_cam
 
     def _held_scene(
         self, obs: _Observation, target: PlaceTarget, state: dict[str, Any], timings: dict[str, float]
@@ -1214,6 +1261,17 @@ _LINE_JUMP_RAD = 0.2
 _MAX_DEEPEN_M = 0.03
 #: Observed points this close to a place surface are the surface itself [m] (sensor noise at 1-2 m).
 _SURFACE_BAND_M = 0.02
+
+
+def _aim_camera(T_base_tcp: np.ndarray, T_tcp_cam: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """(4, 4) the tcp pose `T_base_tcp` moved sideways, its orientation kept, so that the optical axis (+z) of
+    the camera it carries at `T_tcp_cam` passes through `point` (3,) in base [m]."""
+    T_cam = np.asarray(T_base_tcp, dtype=np.float64) @ np.asarray(T_tcp_cam, dtype=np.float64)
+    z = T_cam[:3, 2]
+    d = np.asarray(point, dtype=np.float64) - T_cam[:3, 3]
+    out = np.array(T_base_tcp, dtype=np.float64)
+    out[:3, 3] += d - (d @ z) * z  # the part of the offset across the axis
+    return out
 
 
 def _size_ratio(size: np.ndarray, ref_sorted: np.ndarray) -> float:

@@ -321,3 +321,54 @@ def test_reasons_are_the_issue_list_plus_not_understood():
         "camera_failed",
         "not_understood",
     )
+
+
+def test_aim_camera_puts_the_target_on_the_optical_axis():
+    from scipy.spatial.transform import Rotation
+
+    from prompose_grasp.pipeline.pick_and_place import _aim_camera
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        T_tcp = make_T(Rotation.random(random_state=rng).as_matrix(), rng.uniform(-0.5, 0.5, 3))
+        # A camera beside the tool (as the wrist camera: 7 cm off the axis), turned a little.
+        T_tcp_cam = make_T(Rotation.from_rotvec(rng.normal(0, 0.2, 3)).as_matrix(), [0.0, 0.07, -0.12])
+        point = rng.uniform(-0.5, 0.5, 3)
+        T = _aim_camera(T_tcp, T_tcp_cam, point)
+        np.testing.assert_array_equal(T[:3, :3], T_tcp[:3, :3])  # the orientation is kept
+        cam = T @ T_tcp_cam
+        d = point - cam[:3, 3]
+        # The point lies on the camera's +z axis (float64 round off on ~1 m vectors), in front of it as before.
+        assert np.linalg.norm(d - (d @ cam[:3, 2]) * cam[:3, 2]) < 1e-12
+        before = T_tcp @ T_tcp_cam
+        assert d @ cam[:3, 2] == pytest.approx((point - before[:3, 3]) @ before[:3, 2], abs=1e-12)
+
+
+class WristCamera(Camera):
+    """A camera on the flange at `T_flange_cam`: its frames carry T_base_cam = fk(q) T_flange_cam."""
+
+    def __init__(self, arm, T_flange_cam, fail: int = 0):
+        super().__init__(fail=fail)
+        self.arm = arm
+        self.T_flange_cam = T_flange_cam
+
+    def capture(self) -> RGBDFrame:
+        self.T_base_cam = ROBOT.fk(self.arm.joint_positions()) @ self.T_flange_cam
+        return super().capture()
+
+
+@pytest.mark.parametrize("fail", [0, 1])
+def test_the_wrist_camera_mount_is_learned_from_one_capture(fail):
+    T_flange_cam = make_T(np.eye(3), [0.0, 0.07, 0.03])
+    with FakeArm(ROBOT) as arm, FakeGripper(object_width_m=0.05) as gripper:
+        wrist = WristCamera(arm, T_flange_cam, fail=fail)
+        pnp = PickAndPlace(
+            arm, gripper, Camera(), OracleEstimator(), ROBOT, "parallel_jaw", wrist_camera=wrist
+        )
+        if fail:  # a dropped frame: not learned now, no crash
+            assert pnp._wrist_mount() is None
+        # Learned from the frame's hand-eye pose and the joints (exact up to float64 FK round off) ...
+        np.testing.assert_allclose(pnp._wrist_mount(), T_flange_cam, atol=1e-12)
+        calls = wrist.calls
+        pnp._wrist_mount()
+        assert wrist.calls == calls  # ... once
