@@ -388,9 +388,10 @@ class PickAndPlace:
     ) -> None:
         """Observe-estimate-plan-execute rounds for one object until it is held (and placed)."""
         last = _Abort("not_found", "no attempt was made")
+        tried_at = None  # where the object tried in the last failed round stood (base) [m]
         for round_ in range(self.config.max_estimates):
             self._check_time(t_start)
-            observations, frame = self._observe_candidates(cmd, fixture, timings, state, round_)
+            observations, frame = self._observe_candidates(cmd, fixture, timings, state, round_, tried_at)
             place_target = fixture
             if cmd.action in ("place", "stack") and fixture is None:
                 place_target = self._ground_place_target(cmd, frame, observations[0], timings, state)
@@ -402,6 +403,7 @@ class PickAndPlace:
                     raise
                 last = exc
                 logger.info("round %d failed: %s (%s)", round_ + 1, exc.reason, exc.message)
+                tried_at = observations[0].target.pose.t
                 self._go_home(q_home)
         raise last
 
@@ -458,20 +460,27 @@ class PickAndPlace:
         logger.debug("self-filter: %d depth pixels on the robot dropped", int(on_robot.sum()))
         return dataclasses.replace(frame, depth_m=np.where(on_robot, np.float32(0.0), frame.depth_m))
 
-    def _estimates(self, prompt: str, timings: dict[str, float]) -> tuple[RGBDFrame, list[Any]]:
+    def _estimates(
+        self, prompt: str, timings: dict[str, float], min_score_ratio: float | None = None
+    ) -> tuple[RGBDFrame, list[Any]]:
         """Capture `observe_frames` frames and estimate the prompt: the candidates, best first (one with a
         tracker over several frames or an estimator without `estimate_all`). Nothing found is retried on
         fresh frames `camera_retries` times (a transient depth hole or occlusion) before "not_found"."""
         for k in range(self.config.camera_retries):
             try:
-                return self._estimates_once(prompt, timings)
+                return self._estimates_once(prompt, timings, min_score_ratio)
             except _Abort as exc:
                 if exc.reason != "not_found" or k + 1 == self.config.camera_retries:
                     raise
                 logger.info("nothing found (%s); observing again", exc.message)
         raise _Abort("not_found", "no observation")  # not reached: the loop returns or raises
 
-    def _estimates_once(self, prompt: str, timings: dict[str, float]) -> tuple[RGBDFrame, list[Any]]:
+    def _estimates_once(
+        self, prompt: str, timings: dict[str, float], min_score_ratio: float | None = None
+    ) -> tuple[RGBDFrame, list[Any]]:
+        """Capture and estimate; the candidates' estimates, best first (those scoring under `min_score_ratio`
+        of the best are not fitted; `candidate_ratio` when None)."""
+        ratio = self.config.candidate_ratio if min_score_ratio is None else min_score_ratio
         t0 = time.perf_counter()
         frames = [self._capture() for _ in range(self.config.observe_frames)]
         timings["observe"] += time.perf_counter() - t0
@@ -482,9 +491,7 @@ class PickAndPlace:
             elif hasattr(self.estimator, "estimate_all") and self.config.candidates > 1:
                 n = self.config.candidates
                 ests = list(
-                    self.estimator.estimate_all(
-                        frames[0], prompt, max_objects=n, min_score_ratio=self.config.candidate_ratio
-                    )
+                    self.estimator.estimate_all(frames[0], prompt, max_objects=n, min_score_ratio=ratio)
                 )
                 if not ests:
                     raise ObjectNotFoundError(f"no object in the frame matches {prompt!r}")
@@ -521,26 +528,35 @@ class PickAndPlace:
         timings: dict[str, float],
         state: dict[str, Any],
         round_: int,
+        tried_at: np.ndarray | None = None,
     ) -> tuple[list[_Observation], RGBDFrame]:
-        """Observe and estimate; the candidates that count as the object, in the order they are tried."""
+        """Observe and estimate; the candidates that count as the object, in the order they are tried.
+
+        `tried_at`: where the object of a failed round stood (base) [m]. Objects do not move by themselves:
+        a candidate still there (within `_SAME_PLACE_M`) is tried first, whatever its score this time (a
+        noisy frame can rank a neighbour higher, or put the target's score under `candidate_ratio`)."""
         frac = round_ / self.config.max_estimates
         q_seen = np.asarray(self.arm.joint_positions(), dtype=np.float64)
         self._emit("observe", f"observing ({self.config.observe_frames} frame(s))", 0.05 + 0.9 * frac)
-        frame, ests = self._estimates(cmd.object_prompt, timings)
+        ratio = self.config.candidate_ratio if tried_at is None else 0.0
+        frame, ests = self._estimates(cmd.object_prompt, timings, ratio)
         T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
         points = transform_points(T_base_cam, back_project(frame.depth_m, frame.intrinsics))
         stride = max(1, len(points) // self.config.max_scene_points)
         points = points[::stride]
         best = max(float(getattr(e, "score", 1.0)) for e in ests)
-        observations = []
+        observations, still_there = [], []
         for est in ests:
+            target, support = self._to_base(est, T_base_cam, "target")
+            if tried_at is not None and np.linalg.norm(target.pose.t - tried_at) <= _SAME_PLACE_M:
+                still_there.append(_Observation(frame, est, target, support, points, q_seen))
+                continue
             if float(getattr(est, "score", 1.0)) < self.config.candidate_ratio * best:
                 continue
-            target, support = self._to_base(est, T_base_cam, "target")
             if fixture is not None and _at_target(target, fixture):
                 continue  # already where the command wants it
             observations.append(_Observation(frame, est, target, support, points, q_seen))
-        if not observations:
+        if not observations and not still_there:
             raise _Abort("not_found", f"every {cmd.object_prompt!r} in view is already on the {cmd.target}")
         if self.config.candidate_order == "top_first":
             # What lies on top first (the top layer of a stack): highest top along the support normal.
@@ -548,7 +564,7 @@ class PickAndPlace:
         else:  # "score": the best match first (candidates come best first)
             observations.sort(key=lambda o: -_score(o))
         ratio = self.config.candidate_max_size_ratio
-        if ratio is not None:
+        if ratio is not None and observations:
             # Candidates unlike the best match in size (a box 6x taller than the tea box it scored next to)
             # are another thing: tried after the alike ones, each group in the order above.
             ref = np.sort(max(observations, key=_score).target.pose.size)
@@ -556,6 +572,10 @@ class PickAndPlace:
             observations = [o for o, a in zip(observations, alike) if a] + [
                 o for o, a in zip(observations, alike) if not a
             ]
+        if still_there:
+            assert tried_at is not None
+            still_there.sort(key=lambda o: float(np.linalg.norm(o.target.pose.t - tried_at)))
+            observations = still_there + observations
         logger.info(
             "candidates for %r: %s",
             cmd.object_prompt,
@@ -1257,6 +1277,9 @@ _LINE_STEP_M = 0.005
 #: ... and a joint changing more than this between neighbours is a jump, not a motion [rad] (away from
 #: singularities a 5 mm tcp step moves no joint more than ~0.03 rad; the validator allows 0.2 per waypoint).
 _LINE_JUMP_RAD = 0.2
+#: A candidate this close to where the object of a failed round stood is that object [m]: a slipped grasp
+#: nudges it a few centimetres; two tabletop objects stand at least ~10 cm centre to centre.
+_SAME_PLACE_M = 0.06
 #: The most a grasp is moved deeper along its approach by `_deepened` [m].
 _MAX_DEEPEN_M = 0.03
 #: Observed points this close to a place surface are the surface itself [m] (sensor noise at 1-2 m).
