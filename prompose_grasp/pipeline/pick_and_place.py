@@ -403,7 +403,8 @@ class PickAndPlace:
                     raise
                 last = exc
                 logger.info("round %d failed: %s (%s)", round_ + 1, exc.reason, exc.message)
-                tried_at = observations[0].target.pose.t
+                if self.config.candidate_order == "score":  # a stack of like things: any of them will do
+                    tried_at = observations[0].target.pose.t
                 self._go_home(q_home)
         raise last
 
@@ -532,9 +533,12 @@ class PickAndPlace:
     ) -> tuple[list[_Observation], RGBDFrame]:
         """Observe and estimate; the candidates that count as the object, in the order they are tried.
 
-        `tried_at`: where the object of a failed round stood (base) [m]. Objects do not move by themselves:
-        a candidate still there (within `_SAME_PLACE_M`) is tried first, whatever its score this time (a
-        noisy frame can rank a neighbour higher, or put the target's score under `candidate_ratio`)."""
+        `tried_at`: where the object of a failed round stood (base) [m], with `candidate_order` "score" (a
+        tabletop of different things; in a stack of like things another one will do: depalletising seed 32's
+        top carton could not be carried past the forearm, the next round took its neighbour). Objects do not
+        move by themselves: a candidate still there (within `_SAME_PLACE_M`) is tried first, whatever its
+        score this time (a noisy frame can rank a neighbour higher, or put the target's score under
+        `candidate_ratio`)."""
         frac = round_ / self.config.max_estimates
         q_seen = np.asarray(self.arm.joint_positions(), dtype=np.float64)
         self._emit("observe", f"observing ({self.config.observe_frames} frame(s))", 0.05 + 0.9 * frac)
