@@ -338,7 +338,7 @@ def test_aim_camera_puts_the_target_on_the_optical_axis():
         np.testing.assert_array_equal(T[:3, :3], T_tcp[:3, :3])  # the orientation is kept
         cam = T @ T_tcp_cam
         d = point - cam[:3, 3]
-        # The point lies on the camera's +z axis (float64 round off on ~1 m vectors), in front of it as before.
+        # The point lies on the camera's +z axis (float64 round off on ~1 m vectors), as far ahead as before.
         assert np.linalg.norm(d - (d @ cam[:3, 2]) * cam[:3, 2]) < 1e-12
         before = T_tcp @ T_tcp_cam
         assert d @ cam[:3, 2] == pytest.approx((point - before[:3, 3]) @ before[:3, 2], abs=1e-12)
