@@ -352,13 +352,10 @@ def plan_grasps(
         T_ret = T_grasp.copy()
         T_ret[:, :3, 3] += cfg.lift_m * up
         # Pre-grasp and retreat on the grasp's branch: the lines from the grasp to them, followed in steps.
-        near_ok = _lines_on_branch(
-            robot,
-            np.concatenate([T_grasp, T_grasp]),
-            np.concatenate([T_pre, T_ret])[:, :3, 3] - np.concatenate([T_grasp, T_grasp])[:, :3, 3],
-            np.vstack([q_all[idx], q_all[idx]]),
-            T_tcp_flange,
-        )
+        T_from = np.concatenate([T_grasp, T_grasp])
+        T_to = np.concatenate([T_pre, T_ret])
+        q_from = np.vstack([q_all[idx], q_all[idx]])
+        near_ok = _lines_on_branch(robot, T_from, T_to[:, :3, 3] - T_from[:, :3, 3], q_from, T_tcp_flange)
         n_chunk = len(idx)
         approach_ok = near_ok[:n_chunk] & near_ok[n_chunk:]
         q_free = _free_branches(robot, scene, q_all, branches, idx, approach_ok, T_grasp @ T_tcp_flange, cfg)
