@@ -159,11 +159,18 @@ class FitConfig:
             behind the body unless an occluder or the image border hides other turns too). The ground-truth
             box includes the handle, so its centre swings with that turn; the middle is the least worst
             guess. Negative `handle_band_tol` turns it off.
-        handle_yaw_range_deg: when the handle is seen (at least `handle_min_points` points outside the
-            body), its yaw is set by those points alone: turns about the body's axis within +- this [deg],
-            in 1 deg steps, and the one whose visible handle points lie closest to them wins. The full fit
-            leaves seen handles 3-8 deg off (the body and the handle share the x scale, and the family's
-            handle differs from the instance's); 0 turns it off.
+        handle_sliver_points, handle_match_m, handle_match_step_deg, handle_yaw_range_deg: the handle's own
+            points (at least `handle_sliver_points` outside the body) set its yaw: turns about the body's
+            axis all round the circle, every `handle_match_step_deg` and then to 1 deg, and the one whose
+            visible handle points (the prior's, facing the camera) lie closest to them wins (mean squared
+            distance, each capped at 1 cm). The fit's optimum can sit a quarter turn off a seen handle, and
+            a handle seen edge-on shows fewer than `handle_min_points`; those few (a sliver, or stray edge
+            points of a hidden handle) count only when their RMS distance is at most `handle_match_m` [m]
+            (dev splits: seen slivers 2.9-7.6 mm, stray points 8.2-9.8 mm). The turn is taken when the loss
+            stays within `handle_band_tol` of the fit's; else a seen handle is searched within
+            +-`handle_yaw_range_deg` only (the full fit leaves seen handles 3-8 deg off: the body and the
+            handle share the x scale, and the family's handle differs from the instance's). A
+            `handle_yaw_range_deg` of 0 turns the handle's own yaw off.
         occlusion_margin_m: a pixel outside the object's mask occludes a prior point when its depth is
             nearer than the point's by more than this [m]: several sigma of the depth noise, and less than
             the gap between an occluder's front and the object behind it (objects do not interpenetrate).
@@ -205,6 +212,9 @@ class FitConfig:
     handle_margin_m: float = 0.006
     handle_min_points: int = 20
     handle_yaw_range_deg: float = 12.0
+    handle_sliver_points: int = 8
+    handle_match_m: float = 0.008
+    handle_match_step_deg: float = 5.0
 
     def __post_init__(self) -> None:
         ints = {
@@ -215,6 +225,7 @@ class FitConfig:
             "warm_prior_points": self.warm_prior_points,
             "handle_band_min": self.handle_band_min,
             "handle_min_points": self.handle_min_points,
+            "handle_sliver_points": self.handle_sliver_points,
             "occlusion_stages": self.occlusion_stages,
         }
         for name, v in ints.items():
@@ -248,6 +259,7 @@ class FitConfig:
             "occlusion_margin_m": self.occlusion_margin_m,
             "handle_margin_m": self.handle_margin_m,
             "handle_yaw_range_deg": self.handle_yaw_range_deg,
+            "handle_match_m": self.handle_match_m,
         }
         for name, fv in floats.items():
             if not (isinstance(fv, int | float) and math.isfinite(fv) and fv >= 0.0):
@@ -255,6 +267,10 @@ class FitConfig:
         if not (isinstance(self.handle_band_tol, int | float) and math.isfinite(self.handle_band_tol)):
             raise InvalidInputError(
                 f"FitConfig.handle_band_tol must be a finite number, got {self.handle_band_tol!r}"
+            )
+        if not 0.0 < self.handle_match_step_deg <= 30.0:
+            raise InvalidInputError(
+                f"FitConfig.handle_match_step_deg must be in (0, 30], got {self.handle_match_step_deg}"
             )
         if not 0.0 < self.handle_scan_step_deg <= 120.0:
             raise InvalidInputError(
@@ -896,11 +912,18 @@ _PROTRUSION: weakref.WeakKeyDictionary[ShapePrior, tuple[np.ndarray, np.ndarray]
 
 
 def _handle_yaw(
-    pb: _Problem, st: _State, axis_xz: np.ndarray, prior: ShapePrior, seen: np.ndarray, cfg: FitConfig
-) -> _State:
-    """`st` turned about the round body's axis (within +-`handle_yaw_range_deg`, to 1 deg) to the turn
-    whose visible protrusion points (the prior's handle, facing the camera) lie closest to the observed
-    protrusion points `seen` (mean squared distance, each capped at 1 cm)."""
+    pb: _Problem,
+    st: _State,
+    axis_xz: np.ndarray,
+    prior: ShapePrior,
+    seen: np.ndarray,
+    range_deg: float,
+    coarse_deg: float = 3.0,
+) -> tuple[_State, float]:
+    """`st` turned about the round body's axis (within +-`range_deg`, to 1 deg) to the turn whose visible
+    protrusion points (the prior's handle, facing the camera) lie closest to the observed protrusion points
+    `seen` (mean squared distance, each capped at 1 cm), and that cost [m^2] (inf when no turn shows the
+    handle)."""
     cached = _PROTRUSION.get(prior)
     if cached is None:
         P = np.asarray(prior.points, dtype=np.float64)
@@ -910,7 +933,7 @@ def _handle_yaw(
         _PROTRUSION[prior] = cached
     hp, hn = cached
     if len(hp) < 4:
-        return st
+        return st, math.inf
     s = np.exp(st.log_s)
     tried: dict[float, tuple[float, _State]] = {}
 
@@ -926,12 +949,12 @@ def _handle_yaw(
             tried[a] = (cost, cand)
         return tried[a][0]
 
-    # 3 deg steps over the range, then 1 deg steps round the best (13 turns instead of 25)
-    rng = cfg.handle_yaw_range_deg
-    a0 = min([*np.arange(-rng, rng + 0.5, 3.0).tolist(), 0.0], key=cost_at)
+    # coarse steps over the range, then finer steps round the best (1 deg at the end)
+    rng = min(range_deg, 180.0)
+    a0 = min([*np.arange(-rng, rng + 0.5, coarse_deg).tolist(), 0.0], key=cost_at)
     a1 = min((a0 + d for d in (-2.0, -1.0, 0.0, 1.0, 2.0)), key=cost_at)
-    best = tried[a1][1] if math.isfinite(tried[a1][0]) else st
-    return best
+    cost = tried[a1][0]
+    return (tried[a1][1] if math.isfinite(cost) else st), cost
 
 
 def _middle_of_flat_band(pb: _Problem, st: _State, axis_xz: np.ndarray, cfg: FitConfig) -> _State | None:
@@ -1240,16 +1263,29 @@ def fit_pose(
     cost, op, po, st, pbx, k_best = scored[best]
     body_axis = round_body_axis(shapes[k_best]) if up is not None and cfg.handle_band_tol >= 0.0 else None
     if body_axis is not None and not warm:
-        # a mug whose handle is hidden: the middle of the turns that hide it (FitConfig.handle_band_tol)
+        # a mug: the handle's yaw from its own points, or, hidden, the middle of the turns that hide it
         seen = protrusion_points(pbx.pose(st), body_axis, pts, cfg.handle_margin_m)
-        if len(seen) < cfg.handle_min_points:
+        seen = seen[:: max(1, len(seen) // 256)]  # at most 256 of them
+        turned = None
+        if len(seen) >= cfg.handle_sliver_points and cfg.handle_yaw_range_deg > 0.0:
+            # The handle's own points set its yaw, searched all round the body: the fit's optimum can sit
+            # a quarter turn off (the body's terms pull on it through the shared x scale of body and
+            # handle). Fewer than `handle_min_points` (a handle seen edge-on, or stray edge points of a
+            # hidden one) must match the prior's handle closely. Either way the turn must keep the loss
+            # within the band that a hidden handle's turns span.
+            prior_k = shapes[k_best]
+            wide, match = _handle_yaw(pbx, st, body_axis, prior_k, seen, 180.0, cfg.handle_match_step_deg)
+            sure = len(seen) >= cfg.handle_min_points or match <= cfg.handle_match_m**2
+            ratio = _evaluate(pbx, wide, False)[0] / _evaluate(pbx, st, False)[0] if sure else math.inf
+            log.debug("handle from %d points: match %.1f mm, loss ratio %.3f", len(seen),
+                      1e3 * math.sqrt(match), ratio)  # fmt: skip
+            if ratio <= 1.0 + cfg.handle_band_tol:
+                turned = wide
+            elif len(seen) >= cfg.handle_min_points:
+                turned, _ = _handle_yaw(pbx, st, body_axis, prior_k, seen, cfg.handle_yaw_range_deg)
+        if turned is None and len(seen) < cfg.handle_min_points:
+            # a mug whose handle is hidden: the middle of the turns that hide it (FitConfig.handle_band_tol)
             turned = _middle_of_flat_band(pbx, st, body_axis, cfg)
-        elif cfg.handle_yaw_range_deg > 0.0:
-            # a seen handle: its own points set the yaw (the body's terms pull on it through the shared x
-            # scale of body and handle); at most 256 of them
-            turned = _handle_yaw(pbx, st, body_axis, shapes[k_best], seen[:: max(1, len(seen) // 256)], cfg)
-        else:
-            turned = None
         if turned is not None and turned is not st:
             st = turned
             cost, op, po, _, _ = _evaluate(pbx, st, False)
