@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from prompose_grasp.perception.grounding.plane import PlaneFrame
 from prompose_grasp.perception.grounding.types import GroundingConfig, SupportPlane
@@ -48,6 +48,13 @@ _ADJACENT_CELLS = 4
 #: An inner floor pixel (`_inner_floor`) may read this many sigma(z) below the plane (noise), not more: a
 #: pixel far below the plane is something else seen through a gap.
 _INNER_FLOOR_SIGMAS = 3.0
+
+#: ... and lie within this distance [m] of the object's footprint (`_inner_floor`). The footprint is the hull
+#: of the points above the height cut; a floor seen right up to a thin rim's edge at a slant lies beyond the
+#: rim's own points by its parallax (`test_inner_floor_of_a_tray_joins_its_walls`: a 4 cm rim needs ~2 cm).
+#: Dev split seed 22, grounded masks' precision / recall: laptops 0.949 / 0.938 (no footprint test) ->
+#: 0.986 / 0.935 (0 cm) -> 0.981 / 0.938 (2 cm), mugs 0.951 / 0.923 -> 0.962 / 0.918 -> 0.959 / 0.923.
+_FLOOR_FOOTPRINT_MARGIN_M = 0.02
 
 #: `_join_hinged`: a slab is flat under this height [m] (a laptop base is 1.5-3 cm), a panel thinner than
 #: this footprint width [m] (a screen seen from behind shows 4-8 cm of footprint at its tilt), and the two
@@ -444,8 +451,12 @@ def _inner_floor(
     """Pixels of an object's inner floor that the height cut removed (see `_INNER_FLOOR_SIGMAS`).
 
     Within the mask's convex outline in the image, pixels with depth that lie on or just above the plane
-    (below the height cut) and have the segment's colour (within one `colour_edge`) belong to it: the
-    inside bottom of a bowl or a mug stands only millimetres above the table.
+    (below the height cut) and have the segment's colour (within one `colour_edge`) belong to it when they
+    also lie inside the object's footprint on the plane (the convex hull of its points above the cut, seen
+    from above): the inside bottom of a bowl or a mug stands only millimetres above the table, within the
+    wall. The image outline alone also takes in the table beside a laptop's base or a camera's lens, just as
+    low and, for a dark object on a dark table, of its colour too (dev split seed 22: laptop masks up to
+    20 % table, boxes 1.3-1.6x too wide); that table lies outside the object's footprint.
     """
     contours, _ = cv2.findContours(mask.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     hull = cv2.convexHull(np.concatenate(contours))  # the outline's points suffice (10x fewer than pixels)
@@ -456,7 +467,24 @@ def _inner_floor(
         h = points @ plane.normal_cam + plane.offset_m
         low = np.isfinite(z) & (h > -_INNER_FLOOR_SIGMAS * config.sigma_m(z))
     same = _colour_distance(lab, ref_lab) < config.colour_edge
-    return inside.view(bool) & low & same & ~mask
+    floor = inside.view(bool) & low & same & ~mask
+    body = points[mask & _above(points, plane, config)]
+    if not floor.any() or len(body) < 3:
+        return floor
+    # footprint: the body's points and the candidates in plane coordinates (two axes orthogonal to the normal)
+    n = plane.normal_cam
+    e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    basis = np.column_stack([e1, np.cross(n, e1)])
+    try:
+        edges = ConvexHull(body @ basis).equations  # a x + b y + c <= 0 inside, (a, b) unit
+    except QhullError:  # all on a line: no area to hold a floor
+        return np.zeros_like(floor)
+    rows, cols = np.nonzero(floor)
+    xy = points[rows, cols] @ basis
+    within = np.all(xy @ edges[:, :2].T + edges[:, 2] <= _FLOOR_FOOTPRINT_MARGIN_M, axis=1)
+    floor[rows[~within], cols[~within]] = False
+    return floor
 
 
 def segment_objects(
