@@ -487,6 +487,10 @@ class _Problem:
     config: FitConfig
     scene: SceneView | None = None
     iterations: int = field(default=0)
+    # the last `_evaluate` (its state, its result): the final scoring of a fit re-evaluates the state the
+    # optimiser ended on; and constants of the observation computed once (`_obs_rays`)
+    memo: tuple | None = field(default=None, repr=False, compare=False)
+    rays: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def centre(self, st: _State) -> np.ndarray:
         if self.plane is None:
@@ -543,15 +547,27 @@ def _not_self_occluded(x: np.ndarray, size: np.ndarray, cos_view: np.ndarray) ->
 
 
 def _evaluate(pb: _Problem, st: _State, want_jacobian: bool):
-    """Robust objective at `st` and, if asked, its Gauss-Newton normal equations in the reduced params."""
+    """Robust objective at `st` and, if asked, its Gauss-Newton normal equations in the reduced params.
+
+    The last evaluation is remembered (`_Problem.memo`, by the state's identity: states are never changed in
+    place): asking again for the same state, e.g. the fit's final scoring of the optimiser's last accepted
+    state, returns it without another pair of nearest-neighbour queries.
+    """
+    memo = pb.memo
+    if memo is not None and memo[0] is st and (memo[1][3] is not None or not want_jacobian):
+        return memo[1]
     s = np.exp(st.log_s)
     t = pb.centre(st)
-    q = (pb.prior_p * s) @ st.R.T  # (M, 3) R diag(s) p
+    RT = st.R.T
+    q = (pb.prior_p * s) @ RT  # (M, 3) R diag(s) p
     x = q + t
-    n_cam = (pb.prior_n / s) @ st.R.T
+    n_cam = (pb.prior_n / s) @ RT
     # facing the camera: cos(normal, -x) > visible_cos, i.e. -n.x > visible_cos |n| |x|
     facing = -np.einsum("ij,ij->i", n_cam, x)
-    cos_view = facing / (np.linalg.norm(n_cam, axis=1) * np.linalg.norm(x, axis=1))
+    # |n| |x| as np.linalg.norm computes each (sqrt of the sum of squares), without its overheads
+    cos_view = facing / (
+        np.sqrt(np.add.reduce(n_cam * n_cam, axis=1)) * np.sqrt(np.add.reduce(x * x, axis=1))
+    )
     visible = cos_view > pb.config.visible_cos
     if pb.config.self_occlusion:
         visible &= _not_self_occluded(x, s, cos_view)
@@ -565,17 +581,21 @@ def _evaluate(pb: _Problem, st: _State, want_jacobian: bool):
     vis_idx = np.flatnonzero(visible)
     if len(vis_idx) == 0:  # a degenerate pose; keep the term defined with all points
         vis_idx = np.arange(len(x))
-    # unbalanced, non-compact: ~15 % cheaper to build for the few hundred points of a coarse stage
-    d_op, j_op = cKDTree(x, balanced_tree=False, compact_nodes=False).query(pb.obs, k=1)
+    # unbalanced, non-compact, 32-point leaves: cheapest to build and query for the few hundred points of a
+    # warm fit or a coarse stage (the nearest neighbours are exact whatever the tree's layout)
+    d_op, j_op = cKDTree(x, leafsize=32, balanced_tree=False, compact_nodes=False).query(pb.obs, k=1)
     d_po, j_po = pb.obs_tree.query(x[vis_idx], k=1)
     n_obs, n_vis = len(pb.obs), len(vis_idx)
+    op, po = float(np.mean(d_op * d_op)), float(np.mean(d_po * d_po))
     cost = float(_huber_cost(d_op, delta).mean() + _huber_cost(d_po, delta).mean())
     aspect_r = _aspect_residuals(pb, st.log_s)
     cost += float(aspect_r @ aspect_r)
     contain = _containment(pb, st, s, t, want_jacobian)
     cost += contain[0]
     if not want_jacobian:
-        return cost, float(np.mean(d_op**2)), float(np.mean(d_po**2)), None, None
+        result = (cost, op, po, None, None)
+        pb.memo = (st, result)
+        return result
 
     # Residuals r = x_k - y_j, weights w / n so that sum w r^2 is the objective.
     k_all = np.concatenate([j_op, vis_idx])
@@ -597,7 +617,9 @@ def _evaluate(pb: _Problem, st: _State, want_jacobian: bool):
         wc = contain[2]
         H += Jc.T @ (Jc * wc[:, None])
         g += Jc.T @ (wc * contain[3])
-    return cost, float(np.mean(d_op**2)), float(np.mean(d_po**2)), H, g
+    result = (cost, op, po, H, g)
+    pb.memo = (st, result)
+    return result
 
 
 def _containment(pb: _Problem, st: _State, s: np.ndarray, t: np.ndarray, want_jacobian: bool):
@@ -614,8 +636,9 @@ def _containment(pb: _Problem, st: _State, s: np.ndarray, t: np.ndarray, want_ja
     d = pb.obs - t
     loc = d @ st.R
     # depth noise moves a point along its ray: along a box axis i it adds |R_i . ray| of it
-    ray = pb.obs / np.linalg.norm(pb.obs, axis=1, keepdims=True)
-    margin = pb.config.contain_margin_m + pb.config.contain_ray_margin_m * np.abs(ray @ st.R)
+    if pb.rays is None:  # the observation's unit rays, once per problem
+        pb.rays = pb.obs / np.linalg.norm(pb.obs, axis=1, keepdims=True)
+    margin = pb.config.contain_margin_m + pb.config.contain_ray_margin_m * np.abs(pb.rays @ st.R)
     exc = np.abs(loc) - 0.5 * s - margin
     cap = pb.config.contain_cap_m
     n = len(pb.obs)
@@ -714,18 +737,29 @@ def _aspect_jacobian(pb: _Problem) -> np.ndarray:
     return pb.config.aspect_weight * J
 
 
+def _rotvec_matrix(w: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a rotation vector (3,) by Rodrigues' formula: `so3_exp` up to round-off, without
+    scipy's per-call overheads (it runs once per Levenberg-Marquardt step)."""
+    theta2 = float(w @ w)
+    W = _hat(w)
+    if theta2 < 1e-16:  # second-order series: exact to double precision below 1e-8 rad
+        return np.eye(3) + W + 0.5 * (W @ W)
+    theta = math.sqrt(theta2)
+    return np.eye(3) + (math.sin(theta) / theta) * W + ((1.0 - math.cos(theta)) / theta2) * (W @ W)
+
+
 def _apply(pb: _Problem, st: _State, delta: np.ndarray) -> _State:
     full = pb.basis @ delta
-    out = st.copy()
-    out.R = so3_exp(full[0:3]) @ st.R
-    out.b = st.b + full[3:6]
-    out.log_s = np.clip(st.log_s + full[6:9], _LOG_SIZE_MIN, _LOG_SIZE_MAX)
-    return out
+    return _State(
+        _rotvec_matrix(full[0:3]) @ st.R,
+        st.b + full[3:6],
+        np.clip(st.log_s + full[6:9], _LOG_SIZE_MIN, _LOG_SIZE_MAX),
+    )
 
 
 def _optimise(pb: _Problem, st: _State, iterations: int) -> tuple[_State, float]:
     """Levenberg-Marquardt on the robust objective with correspondences re-found every iteration."""
-    cost, _, _, H, g = _evaluate(pb, st, True)
+    cost, _, _, H, g = _evaluate(pb, st, iterations > 0)  # no iteration, no normal equations
     mu = pb.config.damping
     for _ in range(iterations):
         pb.iterations += 1
