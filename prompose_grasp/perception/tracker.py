@@ -18,6 +18,15 @@ The current frame's own points decide whether the fused fit holds: their RMS dis
 surface above `max_rms_m` means the object moved against the world (then the current frame alone is fitted
 and the window restarts from it) or the track is lost (too few points near the prediction, or the single-frame
 fit is bad too): then the object is grounded again.
+
+Re-fits (a cold multi-hypothesis fit of the frame, when the view has turned by `refit_angle_deg` since the
+last one, or when a mug's handle is not explained) cost ~10 tracked frames. With
+`TrackerConfig.background_refit` (off by default) a turned-view re-fit at video rate (the view turning less
+than `background_max_step_deg` a frame) runs in a worker process instead (forked once, on the first one,
+shared by every tracker of the process; it uses the second core) while the track goes on; its verdict is
+applied `background_lag_frames` frames later, the re-fitted pose carried to that frame by the track's own
+motion. The frame of the verdict is fixed, so the output does not depend on the machine's speed (the update
+waits for the worker there if it is late). docs/fit.md, "Video rate".
 """
 
 from __future__ import annotations
@@ -38,7 +47,7 @@ from scipy.spatial import cKDTree
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.camera import CameraIntrinsics
-from prompose_grasp.geometry.pointcloud import back_project, depth_to_point_map
+from prompose_grasp.geometry.pointcloud import back_project, valid_depth_mask
 from prompose_grasp.geometry.se3 import invert_T, so3_exp, so3_log
 from prompose_grasp.perception.estimator import Estimate, plane_vector
 from prompose_grasp.perception.fit import FitConfig, FitResult, SceneView, fit_pose, protrusion_points
@@ -90,13 +99,15 @@ class TrackerConfig:
             to measure the residual.
         fit_iterations: Gauss-Newton iterations of a tracked frame's warm fit (the prediction is close).
         fit_points, fit_prior_points: observed (of the fused cloud) and prior points of that warm fit.
-        background_refit: a re-fit started by the turned view while the camera moves slowly (the view
-            turned less than `background_max_step_deg` since the previous frame: a video stream) runs in a
-            worker process, on the second core, while the track goes on; its verdict is applied
-            `background_lag_frames` frames later (waiting for it there if it is not done: the output does
-            not depend on the machine's speed), the re-fitted pose carried to that frame by the track's own
-            motion since. Re-fits for an unexplained handle, re-fits on fast camera motion (the sim
-            dataset's 5-20 deg a frame), and platforms without `fork` run in the update as before.
+        background_refit: (off by default) a re-fit started by the turned view while the camera moves
+            slowly (the view turned less than `background_max_step_deg` since the previous frame: a video
+            stream) runs in a worker process, on the second core, while the track goes on; its verdict is
+            applied `background_lag_frames` frames later (waiting for it there if it is not done: the
+            output does not depend on the machine's speed), the re-fitted pose carried to that frame by the
+            track's own motion since. Re-fits for an unexplained handle, re-fits on fast camera motion (the
+            sim dataset's 5-20 deg a frame), and platforms without `fork` run in the update as before.
+            Faster only with a core to spare, and a re-fit that corrects the track does so `lag` frames late:
+            measured in docs/fit.md ("Video rate").
         background_max_step_deg: see `background_refit` [deg].
         background_lag_frames: see `background_refit`.
     """
@@ -118,7 +129,7 @@ class TrackerConfig:
     fit_iterations: int = 8
     fit_points: int = 384
     fit_prior_points: int = 512
-    background_refit: bool = True
+    background_refit: bool = False
     background_max_step_deg: float = 3.0
     background_lag_frames: int = 10
 
@@ -603,10 +614,16 @@ class Tracker:
         if k > 1:  # every k-th pixel: the crop's camera with focal lengths and principal point divided by k
             w, h = math.ceil(crop.width / k), math.ceil(crop.height / k)
             crop = CameraIntrinsics(crop.fx / k, crop.fy / k, crop.cx / k, crop.cy / k, width=w, height=h)
-        sub = depth_to_point_map(frame.depth_m[y0 : y1 + 1 : k, x0 : x1 + 1 : k], crop)
-        keep = np.all(np.isfinite(sub), axis=2)
-        pts = sub[keep]
-        inside = grown.contains(pts)
+        # `depth_to_point_map` of the crop, back-projecting only the pixels with a reading (the same
+        # arithmetic: x = z (u - cx) / fx per pixel, in row-major order)
+        sub = frame.depth_m[y0 : y1 + 1 : k, x0 : x1 + 1 : k]
+        rows, cols = np.nonzero(valid_depth_mask(sub))
+        z = sub[rows, cols].astype(np.float64)
+        u = (np.arange(crop.width) - crop.cx) / crop.fx
+        v = (np.arange(crop.height) - crop.cy) / crop.fy
+        pts = np.column_stack([z * u[cols], z * v[rows], z])
+        # `grown.contains(pts)`, without its input checks (the points are finite by construction)
+        inside = np.all(np.abs((pts - grown.t) @ grown.R) <= 0.5 * grown.size, axis=1)
         if plane is not None:
             inside &= plane.height_m(pts) > self.config.plane_clearance_m
         if self.prior is not None and np.any(inside):
@@ -619,9 +636,10 @@ class Tracker:
                 q = np.column_stack([np.hypot(local[:, 0], local[:, 2]), local[:, 1]])
                 d, _ = cKDTree(profile).query(q, k=1, distance_upper_bound=self.config.surface_margin_m)
             inside[idx[~np.isfinite(d)]] = False
-        rows, cols = np.nonzero(keep)
-        for dy in range(k):  # each sampled pixel stands for its k x k block
-            for dx in range(k):
-                r = np.minimum(k * rows[inside] + y0 + dy, y1)
-                mask[r, np.minimum(k * cols[inside] + x0 + dx, x1)] = True
+        # each sampled pixel stands for its k x k block (cut at the crop's edge)
+        picked = np.zeros(sub.shape, dtype=bool)
+        picked[rows[inside], cols[inside]] = True
+        if k > 1:
+            picked = np.repeat(np.repeat(picked, k, axis=0), k, axis=1)
+        mask[y0 : y1 + 1, x0 : x1 + 1] = picked[: y1 - y0 + 1, : x1 - x0 + 1]
         return mask, pts[inside]

@@ -361,3 +361,42 @@ def test_slow_camera_refits_in_the_background_and_turns_the_track_back_later(bac
     # bar of the 12-deg-a-frame test above) from that frame on
     assert min(errors[:k_taken]) > 90.0
     assert max(errors[k_taken:]) < 15.0
+
+
+def test_tracked_selection_is_the_plain_back_projection(orbit):
+    # `Tracker._select` back-projects only the valid pixels of the predicted box's image rectangle: at full
+    # resolution the same points (row-major) and pixels as back-projecting the whole image with
+    # `depth_to_point_map` and keeping the points in the grown box, off the plane and within
+    # `surface_margin_m` of the posed prior's surface samples. (Against the code before that change, on 363
+    # selections of the video split, strides 1 and 2, with and without `any_turn`: identical arrays.)
+    from scipy.spatial import cKDTree
+
+    from prompose_grasp.geometry.pointcloud import depth_to_point_map
+
+    prior, gt_world, frames = orbit
+    tracker = Tracker(ProMPose(Grounder(), PriorLibrary()), "box", prior=prior)
+    frame0, mask0 = frames[0]
+    tracker.update(frame0, mask=mask0)
+    frame = frames[1][0]
+    pred = gt_world.transformed(np.linalg.inv(frame.T_base_cam))
+    plane, cfg = tracker._plane, tracker.config
+    mask, pts = tracker._select(frame, pred, plane, stride=1)
+    every = depth_to_point_map(frame.depth_m, frame.intrinsics)
+    rows, cols = np.nonzero(np.isfinite(every[..., 2]))
+    cand = every[rows, cols]
+    grown = Pose9D(pred.R, pred.t, pred.size + 2.0 * cfg.roi_margin_m)
+    keep = grown.contains(cand) & (plane.height_m(cand) > cfg.plane_clearance_m)
+    d, _ = cKDTree(pred.points_to_camera(tracker._prior_sample())).query(cand, k=1)
+    keep &= d <= cfg.surface_margin_m
+    assert len(pts) > 500
+    expected = np.zeros_like(mask)
+    expected[rows[keep], cols[keep]] = True
+    np.testing.assert_array_equal(mask, expected)
+    # the crop's principal point is the image's shifted by whole pixels: (u - cx) is the same number, or
+    # one ulp off, so the points agree to round-off of metre-scale coordinates
+    np.testing.assert_allclose(pts, cand[keep], rtol=0.0, atol=1e-12)
+    # every 2nd pixel: a subset of those points, each pixel's 2 x 2 block in the mask
+    mask2, pts2 = tracker._select(frame, pred, plane, stride=2)
+    assert 0.2 * len(pts) < len(pts2) < 0.3 * len(pts)  # a quarter of the pixels, give or take the edges
+    assert np.isin(pts2.view([("", pts2.dtype)] * 3), pts.view([("", pts.dtype)] * 3)).all()
+    assert np.count_nonzero(mask2) <= 4 * len(pts2) and np.count_nonzero(mask2 & ~mask) <= 4 * len(pts2)
