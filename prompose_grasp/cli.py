@@ -44,15 +44,22 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--split", default="test", help="split to evaluate (default: test, the unseen categories)")
     p.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
     p.add_argument("--candidates", type=int, default=3, help="grounded candidates per category and frame")
+    p.add_argument(
+        "--methods",
+        default=None,
+        help="comma-separated rows to run (default: all): ours_oracle_mask, obb_oracle_mask, ours, obb, "
+        "ours_tracked, ours_tracked_oracle_mask; the others are left out of the report",
+    )
     p.add_argument("--json", dest="json_out", default=None, help="also write the full report here")
     p.set_defaults(func=_run_bench)
 
 
 def _run_bench(args: argparse.Namespace) -> int:
-    from prompose_grasp.eval.bench_estimator import format_report, run_estimator_benchmark
+    from prompose_grasp.eval.bench_estimator import format_report, parse_methods, run_estimator_benchmark
     from prompose_grasp.eval.report import write_report_json
 
-    report = run_estimator_benchmark(args.data, args.split, args.max_frames, args.candidates)
+    methods = parse_methods(args.methods)  # a bad name fails before the estimator loads
+    report = run_estimator_benchmark(args.data, args.split, args.max_frames, args.candidates, methods=methods)
     print(format_report(report))
     if args.json_out:
         write_report_json(report, args.json_out)

@@ -1,6 +1,6 @@
 """Benchmark of the ProM-Pose estimator on a synthetic dataset split, against the OBB baseline, same run.
 
-    prompose-grasp bench --data DIR [--split test] [--max-frames N] [--json OUT]
+    prompose-grasp bench --data DIR [--split test] [--max-frames N] [--methods A,B] [--json OUT]
 
 Per frame of the split (a dataset written by `python -m sim.dataset`; test categories are unseen in training):
 
@@ -17,6 +17,9 @@ Per frame of the split (a dataset written by `python -m sim.dataset`; test categ
   test-category object of the scene's first frame: the tracker alone (later frames use no ground truth;
   a lost track is grounded again), to compare with `ours_oracle_mask` frame by frame.
 
+`--methods` (`methods=`) runs only the named rows (default: all); the rows not run are absent from the report
+(e.g. the tracked rows alone on a long video-rate split, where the single-frame rows would cost most).
+
 Every method is scored by `compute_nocs_map` in the three IoU modes (`exact` is the headline, see
 docs/metrics.md). Only this script reads ground truth.
 """
@@ -28,12 +31,13 @@ import platform
 import sys
 import time
 from collections import defaultdict
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from prompose_grasp.errors import PromposeError
+from prompose_grasp.errors import InvalidInputError, PromposeError, UnknownNameError
 from prompose_grasp.eval.baselines import obb_baseline
 from prompose_grasp.eval.nocs import IOU_MODES
 from prompose_grasp.eval.report import format_nocs_table
@@ -44,11 +48,16 @@ from prompose_grasp.perception.dataset import SyntheticFrame, read_split, scene_
 from prompose_grasp.perception.estimator import ProMPose
 from prompose_grasp.perception.priors import ShapePrior
 
-__all__ = ["METHODS", "run_estimator_benchmark"]
+__all__ = ["METHODS", "parse_methods", "run_estimator_benchmark"]
 
 log = logging.getLogger(__name__)
 
 METHODS = ("ours_oracle_mask", "obb_oracle_mask", "ours", "obb", "ours_tracked", "ours_tracked_oracle_mask")
+
+#: Rows computed together: the oracle-mask OBB baseline uses the oracle-mask estimate's support plane, the
+#: grounded OBB baseline the grounded estimate's masks.
+_ORACLE_ROWS = frozenset({"ours_oracle_mask", "obb_oracle_mask"})
+_GROUNDED_ROWS = frozenset({"ours", "obb"})
 
 #: Objects with fewer valid depth pixels than this are skipped by every method alike (still counted as GT).
 _MIN_POINTS = 50
@@ -62,6 +71,23 @@ def _percentiles_ms(samples_s: list[float]) -> dict[str, float]:
             "mean_ms": float(np.mean(a))}  # fmt: skip
 
 
+def parse_methods(methods: str | Sequence[str] | None) -> tuple[str, ...]:
+    """The benchmark rows to run, in `METHODS` order: None (or an empty string) is all of them; a string is a
+    comma-separated list. Unknown names raise `UnknownNameError` listing the valid ones."""
+    if methods is None:
+        return METHODS
+    names = [m.strip() for m in methods.split(",")] if isinstance(methods, str) else list(methods)
+    names = [m for m in names if m]
+    if not names:
+        if isinstance(methods, str):
+            return METHODS
+        raise InvalidInputError(f"methods is empty; choose from {', '.join(METHODS)}")
+    for m in names:
+        if m not in METHODS:
+            raise UnknownNameError("benchmark method", m, METHODS)
+    return tuple(m for m in METHODS if m in names)
+
+
 def run_estimator_benchmark(
     data: str | Path,
     split: str = "test",
@@ -69,8 +95,11 @@ def run_estimator_benchmark(
     candidates: int = 3,
     estimator: ProMPose | None = None,
     progress: bool = True,
+    methods: str | Sequence[str] | None = None,
 ) -> dict[str, Any]:
-    """Run every method over the split; returns the report dict (tables per method and IoU mode, timings)."""
+    """Run the methods (`parse_methods`; default every one) over the split; returns the report dict (tables
+    per method run and IoU mode, timings)."""
+    wanted = parse_methods(methods)
     data = Path(data)
     doc = read_split(data)
     if split not in doc:
@@ -78,7 +107,7 @@ def run_estimator_benchmark(
     categories = sorted(doc[split]["categories"])
     synsets = ["BG", *categories]
     estimator = estimator or ProMPose.default()
-    per_image: dict[str, list[dict[str, Any]]] = {m: [] for m in METHODS}
+    per_image: dict[str, list[dict[str, Any]]] = {m: [] for m in wanted}
     times: dict[str, list[float]] = defaultdict(list)
     symmetry: dict[str, str] = {}
     frames_done = 0
@@ -90,18 +119,23 @@ def run_estimator_benchmark(
             frames = frames[: max(0, max_frames - frames_done)]
         if not frames:
             break
-        tracked = _track_scene(estimator, frames, categories, times)
-        tracked_oracle = _track_scene_oracle_mask(estimator, frames, categories, times)
+        preds_tracked: dict[str, list[list[tuple[int, Pose9D, float]]]] = {}
+        if "ours_tracked" in wanted:
+            preds_tracked["ours_tracked"] = _track_scene(estimator, frames, categories, times)
+        if "ours_tracked_oracle_mask" in wanted:
+            preds_tracked["ours_tracked_oracle_mask"] = _track_scene_oracle_mask(
+                estimator, frames, categories, times
+            )
         priors: dict[int, ShapePrior] = {}
         for k, sf in enumerate(frames):
             gts = [(synsets.index(o.category), o.pose, o.handle_visible)
                    for o in sf.ground_truth_objects if o.category in categories]  # fmt: skip
             for o in sf.ground_truth_objects:
                 symmetry[o.category] = o.symmetry
-            preds = _frame_predictions(estimator, sf, categories, synsets, candidates, priors, times)
-            preds["ours_tracked"] = tracked[k]
-            preds["ours_tracked_oracle_mask"] = tracked_oracle[k]
-            for m in METHODS:
+            preds = _frame_predictions(estimator, sf, categories, synsets, candidates, priors, times, wanted)
+            for m, per_frame in preds_tracked.items():
+                preds[m] = per_frame[k]
+            for m in wanted:
                 per_image[m].append(nocs_image_result(gts, preds[m]))
             frames_done += 1
         if progress:
@@ -111,18 +145,23 @@ def run_estimator_benchmark(
             break
     ysym = tuple(c for c, s in symmetry.items() if s == "y_continuous")
     tables = nocs_tables(per_image, synsets, ysym)
-    track_s = times["track_update"]
+    track_s = times.get("track_update", [])
+    oracle_s = times.get("track_oracle_update", [])
     return {
         "data": str(data),
         "split": split,
         "frames": frames_done,
         "categories": categories,
+        "methods": list(wanted),
         "y_symmetric_classes": list(ysym),
         "tables": tables,
         "timing": {k: _percentiles_ms(v) for k, v in times.items()},
         "tracking_fps": float(1.0 / np.mean(track_s)) if track_s else float("nan"),
         # the typical frame (the mean holds the re-fits and re-groundings; docs/fit.md, temporal refinement)
         "tracking_fps_median": float(1.0 / np.median(track_s)) if track_s else float("nan"),
+        # the same for the tracker alone (`ours_tracked_oracle_mask`: no re-grounding on frame 0)
+        "tracking_oracle_mask_fps": float(1.0 / np.mean(oracle_s)) if oracle_s else float("nan"),
+        "tracking_oracle_mask_fps_median": float(1.0 / np.median(oracle_s)) if oracle_s else float("nan"),
         "machine": {"platform": platform.platform(), "python": sys.version.split()[0]},
     }
 
@@ -135,10 +174,13 @@ def _frame_predictions(
     candidates: int,
     priors: dict[int, ShapePrior],
     times: dict[str, list[float]],
+    wanted: tuple[str, ...] = METHODS,
 ) -> dict[str, list[tuple[int, Pose9D, float]]]:
+    """The single-frame rows of `wanted` (an oracle-mask or grounded pair is computed together)."""
     preds: dict[str, list[tuple[int, Pose9D, float]]] = defaultdict(list)
     frame = sf.frame
-    for obj in sf.ground_truth_objects:
+    oracle = not _ORACLE_ROWS.isdisjoint(wanted)
+    for obj in sf.ground_truth_objects if oracle else ():
         if obj.category not in categories:
             continue
         cls = synsets.index(obj.category)
@@ -154,7 +196,8 @@ def _frame_predictions(
         t0 = time.perf_counter()
         preds["obb_oracle_mask"].append((cls, obb_baseline(points, est.support_plane), 1.0))
         times["obb"].append(time.perf_counter() - t0)
-    for category in sorted({o.category for o in sf.ground_truth_objects} & set(categories)):
+    present = sorted({o.category for o in sf.ground_truth_objects} & set(categories))
+    for category in present if not _GROUNDED_ROWS.isdisjoint(wanted) else ():
         cls = synsets.index(category)
         t0 = time.perf_counter()
         estimates = estimator.estimate_all(frame, category, max_objects=candidates)
@@ -217,18 +260,21 @@ def _track_scene_oracle_mask(
 
 
 def format_report(report: dict[str, Any]) -> str:
-    """The report as text: one NOCS table per IoU mode with every method, then timings."""
+    """The report as text: one NOCS table per IoU mode with every method run, then timings."""
     cats = ", ".join(report["categories"])
     lines = [f"{report['frames']} frames of {report['data']} ({report['split']}: {cats})"]
     for mode in IOU_MODES:
-        for m in METHODS:
+        for m in (m for m in METHODS if m in report["tables"]):
             lines.append(format_nocs_table(report["tables"][m][mode], title=f"{m}  [iou_mode={mode}]"))
     lines.append("timing per call (median / p90 ms):")
     for k, v in report["timing"].items():
         if v.get("n"):
             lines.append(f"  {k:<24} {v['median_ms']:8.1f} / {v['p90_ms']:8.1f}   (n={v['n']})")
-    lines.append(
-        f"tracking: {report['tracking_fps']:.1f} frames/s per object (mean over updates), "
-        f"{report.get('tracking_fps_median', float('nan')):.1f} (median update)"
-    )
+    speeds = (("tracking_fps", "tracking"), ("tracking_oracle_mask_fps", "tracking from the oracle mask"))
+    for key, what in speeds:
+        if np.isfinite(report.get(key, float("nan"))):
+            lines.append(
+                f"{what}: {report[key]:.1f} frames/s per object (mean over updates), "
+                f"{report.get(key + '_median', float('nan')):.1f} (median update)"
+            )
     return "\n".join(lines)

@@ -503,6 +503,10 @@ class _Problem:
     config: FitConfig
     scene: SceneView | None = None
     iterations: int = field(default=0)
+    # the last `_evaluate` ([state, result, terms of its normal equations]): the final scoring of a fit
+    # re-evaluates the state the optimiser ended on; and the observation's unit rays, computed once
+    memo: list | None = field(default=None, repr=False, compare=False)
+    rays: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def centre(self, st: _State) -> np.ndarray:
         if self.plane is None:
@@ -538,7 +542,12 @@ def _not_self_occluded(x: np.ndarray, size: np.ndarray, cos_view: np.ndarray) ->
     area = 2.0 * (size[0] * size[1] + size[1] * size[2] + size[0] * size[2])
     bin_m = 2.0 * math.sqrt(area / len(x))
     z = x[:, 2]
-    z_ref = float(np.median(z))
+    h = len(z) // 2  # the median as np.median computes it (a partition, the mean of the middle pair)
+    if len(z) % 2:
+        z_ref = float(np.partition(z, h)[h])
+    else:
+        zp = np.partition(z, (h - 1, h))
+        z_ref = float((zp[h - 1] + zp[h]) / 2.0)
     if z_ref <= 0.0:
         return np.ones(len(x), dtype=bool)
     b = bin_m / z_ref
@@ -559,15 +568,37 @@ def _not_self_occluded(x: np.ndarray, size: np.ndarray, cos_view: np.ndarray) ->
 
 
 def _evaluate(pb: _Problem, st: _State, want_jacobian: bool):
-    """Robust objective at `st` and, if asked, its Gauss-Newton normal equations in the reduced params."""
+    """Robust objective at `st` and, if asked, its Gauss-Newton normal equations in the reduced params.
+
+    The last evaluation is remembered (`_Problem.memo`, by the state's identity: states are never changed in
+    place), with its nearest neighbours: asking again for the same state returns it, and asking for the
+    normal equations of a state whose cost alone was asked for (`_optimise`'s accepted trial step) builds
+    them on its correspondences, without another pair of nearest-neighbour queries.
+    """
+    memo = pb.memo
+    if memo is None or memo[0] is not st:
+        memo = pb.memo = [st, *_objective(pb, st)]
+    if want_jacobian and memo[1][3] is None:
+        H, g = _jacobian(pb, st, memo[2])
+        memo[1] = (*memo[1][:3], H, g)
+    return memo[1]
+
+
+def _objective(pb: _Problem, st: _State):
+    """The objective at `st`: ((cost, obs->prior mean d^2, prior->obs mean d^2, None, None), the terms its
+    normal equations need)."""
     s = np.exp(st.log_s)
     t = pb.centre(st)
-    q = (pb.prior_p * s) @ st.R.T  # (M, 3) R diag(s) p
+    RT = st.R.T
+    q = (pb.prior_p * s) @ RT  # (M, 3) R diag(s) p
     x = q + t
-    n_cam = (pb.prior_n / s) @ st.R.T
+    n_cam = (pb.prior_n / s) @ RT
     # facing the camera: cos(normal, -x) > visible_cos, i.e. -n.x > visible_cos |n| |x|
     facing = -np.einsum("ij,ij->i", n_cam, x)
-    cos_view = facing / (np.linalg.norm(n_cam, axis=1) * np.linalg.norm(x, axis=1))
+    # |n| |x| as np.linalg.norm computes each (sqrt of the sum of squares), without its overheads
+    cos_view = facing / (
+        np.sqrt(np.add.reduce(n_cam * n_cam, axis=1)) * np.sqrt(np.add.reduce(x * x, axis=1))
+    )
     visible = cos_view > pb.config.visible_cos
     if pb.config.self_occlusion:
         visible &= _not_self_occluded(x, s, cos_view)
@@ -581,18 +612,25 @@ def _evaluate(pb: _Problem, st: _State, want_jacobian: bool):
     vis_idx = np.flatnonzero(visible)
     if len(vis_idx) == 0:  # a degenerate pose; keep the term defined with all points
         vis_idx = np.arange(len(x))
-    # unbalanced, non-compact: ~15 % cheaper to build for the few hundred points of a coarse stage
-    d_op, j_op = cKDTree(x, balanced_tree=False, compact_nodes=False).query(pb.obs, k=1)
+    # unbalanced, non-compact, 32-point leaves: cheapest to build and query for the few hundred points of a
+    # warm fit or a coarse stage (the nearest neighbours are exact whatever the tree's layout)
+    d_op, j_op = cKDTree(x, leafsize=32, balanced_tree=False, compact_nodes=False).query(pb.obs, k=1)
     d_po, j_po = pb.obs_tree.query(x[vis_idx], k=1)
-    n_obs, n_vis = len(pb.obs), len(vis_idx)
+    op, po = float(np.mean(d_op * d_op)), float(np.mean(d_po * d_po))
     cost = float(_huber_cost(d_op, delta).mean() + _huber_cost(d_po, delta).mean())
     aspect_r = _aspect_residuals(pb, st.log_s)
     cost += float(aspect_r @ aspect_r)
-    contain = _containment(pb, st, s, t, want_jacobian)
-    cost += contain[0]
-    if not want_jacobian:
-        return cost, float(np.mean(d_op**2)), float(np.mean(d_po**2)), None, None
+    contain_cost, contain_part = _containment_cost(pb, st, s, t)
+    cost += contain_cost
+    return (cost, op, po, None, None), (s, q, x, d_op, j_op, d_po, j_po, vis_idx, aspect_r, contain_part)
 
+
+def _jacobian(pb: _Problem, st: _State, terms: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Newton normal equations (H, g) in the reduced params at `st`, on the correspondences and
+    residuals `_objective` found there."""
+    s, q, x, d_op, j_op, d_po, j_po, vis_idx, aspect_r, contain_part = terms
+    delta = pb.config.huber_m
+    n_obs, n_vis = len(pb.obs), len(vis_idx)
     # Residuals r = x_k - y_j, weights w / n so that sum w r^2 is the objective.
     k_all = np.concatenate([j_op, vis_idx])
     y_all = np.concatenate([pb.obs, pb.obs[j_po]])
@@ -608,12 +646,12 @@ def _evaluate(pb: _Problem, st: _State, want_jacobian: bool):
     Ja = _aspect_jacobian(pb) @ pb.basis[6:9]
     H += Ja.T @ Ja
     g += Ja.T @ aspect_r
-    if contain[1] is not None:
-        Jc = contain[1] @ pb.basis
-        wc = contain[2]
+    if contain_part is not None:
+        Jc, wc, ec = _containment_jacobian(pb, st, s, contain_part)
+        Jc = Jc @ pb.basis
         H += Jc.T @ (Jc * wc[:, None])
-        g += Jc.T @ (wc * contain[3])
-    return cost, float(np.mean(d_op**2)), float(np.mean(d_po**2)), H, g
+        g += Jc.T @ (wc * ec)
+    return H, g
 
 
 def _containment(pb: _Problem, st: _State, s: np.ndarray, t: np.ndarray, want_jacobian: bool):
@@ -624,28 +662,40 @@ def _containment(pb: _Problem, st: _State, s: np.ndarray, t: np.ndarray, want_ja
     `contain_weight`. Parameters as in `_normal_equations` (left rotation increment, centre or bottom,
     log size); with a plane, the centre moves with log s_y (bottom held).
     """
+    cost, part = _containment_cost(pb, st, s, t)
+    if not want_jacobian or part is None:
+        return cost, None, None, None
+    return (cost, *_containment_jacobian(pb, st, s, part))
+
+
+def _containment_cost(pb: _Problem, st: _State, s: np.ndarray, t: np.ndarray) -> tuple[float, tuple | None]:
+    """`_containment`'s cost, and what its Jacobian needs (None when no point pulls)."""
     lam = pb.config.contain_weight
     if lam <= 0.0:
-        return 0.0, None, None, None
+        return 0.0, None
     d = pb.obs - t
     loc = d @ st.R
     # depth noise moves a point along its ray: along a box axis i it adds |R_i . ray| of it
-    ray = pb.obs / np.linalg.norm(pb.obs, axis=1, keepdims=True)
-    margin = pb.config.contain_margin_m + pb.config.contain_ray_margin_m * np.abs(ray @ st.R)
+    if pb.rays is None:  # the observation's unit rays, once per problem
+        pb.rays = pb.obs / np.linalg.norm(pb.obs, axis=1, keepdims=True)
+    margin = pb.config.contain_margin_m + pb.config.contain_ray_margin_m * np.abs(pb.rays @ st.R)
     exc = np.abs(loc) - 0.5 * s - margin
     cap = pb.config.contain_cap_m
     n = len(pb.obs)
     delta = pb.config.huber_m
-    # outliers beyond the cap cost a constant (the cap's cost) and do not pull
+    # outliers beyond the cap cost a constant (the cap's cost, `_huber_cost` in scalars) and do not pull
     n_out = int(np.count_nonzero(exc > cap))
     k_pt, k_ax = np.nonzero((exc > 0.0) & (exc <= cap))
-    cost_out = lam * n_out * float(_huber_cost(np.array([cap]), delta)[0]) / n
+    cost_out = lam * n_out * (cap * cap if cap <= delta else 2.0 * delta * cap - delta * delta) / n
     if len(k_pt) == 0:
-        return cost_out, None, None, None
+        return cost_out, None
     e = exc[k_pt, k_ax]
-    cost = cost_out + lam * float(_huber_cost(e, delta).sum()) / n
-    if not want_jacobian:
-        return cost, None, None, None
+    return cost_out + lam * float(_huber_cost(e, delta).sum()) / n, (d, loc, k_pt, k_ax, e)
+
+
+def _containment_jacobian(pb: _Problem, st: _State, s: np.ndarray, part: tuple):
+    """`_containment`'s (J (K, 9), weights (K,), residuals (K,)) from `_containment_cost`'s terms."""
+    d, loc, k_pt, k_ax, e = part
     sg = np.sign(loc[k_pt, k_ax])
     Ri = st.R[:, k_ax].T  # (K, 3) the box axis of each residual
     J = np.zeros((len(e), 9))
@@ -655,8 +705,8 @@ def _containment(pb: _Problem, st: _State, s: np.ndarray, t: np.ndarray, want_ja
     if pb.plane is not None:
         assert pb.up is not None
         J[:, 7] += -sg * (Ri @ pb.up) * 0.5 * s[1]  # the centre rises with the height (bottom held)
-    w = lam * _huber_weights(e, delta) / n
-    return cost, J, w, e
+    w = pb.config.contain_weight * _huber_weights(e, pb.config.huber_m) / len(pb.obs)
+    return J, w, e
 
 
 def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -730,18 +780,29 @@ def _aspect_jacobian(pb: _Problem) -> np.ndarray:
     return pb.config.aspect_weight * J
 
 
+def _rotvec_matrix(w: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a rotation vector (3,) by Rodrigues' formula: `so3_exp` up to round-off, without
+    scipy's per-call overheads (it runs once per Levenberg-Marquardt step)."""
+    theta2 = float(w @ w)
+    W = _hat(w)
+    if theta2 < 1e-16:  # second-order series: exact to double precision below 1e-8 rad
+        return np.eye(3) + W + 0.5 * (W @ W)
+    theta = math.sqrt(theta2)
+    return np.eye(3) + (math.sin(theta) / theta) * W + ((1.0 - math.cos(theta)) / theta2) * (W @ W)
+
+
 def _apply(pb: _Problem, st: _State, delta: np.ndarray) -> _State:
     full = pb.basis @ delta
-    out = st.copy()
-    out.R = so3_exp(full[0:3]) @ st.R
-    out.b = st.b + full[3:6]
-    out.log_s = np.clip(st.log_s + full[6:9], _LOG_SIZE_MIN, _LOG_SIZE_MAX)
-    return out
+    return _State(
+        _rotvec_matrix(full[0:3]) @ st.R,
+        st.b + full[3:6],
+        np.clip(st.log_s + full[6:9], _LOG_SIZE_MIN, _LOG_SIZE_MAX),
+    )
 
 
 def _optimise(pb: _Problem, st: _State, iterations: int) -> tuple[_State, float]:
     """Levenberg-Marquardt on the robust objective with correspondences re-found every iteration."""
-    cost, _, _, H, g = _evaluate(pb, st, True)
+    cost, _, _, H, g = _evaluate(pb, st, iterations > 0)  # no iteration, no normal equations
     mu = pb.config.damping
     for _ in range(iterations):
         pb.iterations += 1
@@ -753,9 +814,9 @@ def _optimise(pb: _Problem, st: _State, iterations: int) -> tuple[_State, float]
         except np.linalg.LinAlgError:
             break
         trial = _apply(pb, st, delta)
-        t_cost, _, _, t_H, t_g = _evaluate(pb, trial, True)
+        t_cost = _evaluate(pb, trial, False)[0]  # the normal equations only for a step that is taken
         if t_cost <= cost:
-            st, cost, H, g = trial, t_cost, t_H, t_g
+            st, cost, H, g = trial, t_cost, *_evaluate(pb, trial, True)[3:]
             mu = max(mu / 3.0, pb.config.damping)
             if float(np.max(np.abs(delta))) < pb.config.step_tol:
                 break
