@@ -18,26 +18,14 @@ The current frame's own points decide whether the fused fit holds: their RMS dis
 surface above `max_rms_m` means the object moved against the world (then the current frame alone is fitted
 and the window restarts from it) or the track is lost (too few points near the prediction, or the single-frame
 fit is bad too): then the object is grounded again.
-
-Re-fits (a cold multi-hypothesis fit of the frame, when the view has turned by `refit_angle_deg` since the
-last one, or when a mug's handle is not explained) cost ~10 tracked frames. With
-`TrackerConfig.background_refit` (off by default) a turned-view re-fit at video rate (the view turning less
-than `background_max_step_deg` a frame) runs in a worker process instead (forked once, on the first one,
-shared by every tracker of the process; it uses the second core) while the track goes on; its verdict is
-applied `background_lag_frames` frames later, the re-fitted pose carried to that frame by the track's own
-motion. The frame of the verdict is fixed, so the output does not depend on the machine's speed (the update
-waits for the worker there if it is late). docs/fit.md, "Video rate".
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import multiprocessing
-import threading
 import time
 from collections import deque
-from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -50,10 +38,10 @@ from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import back_project, valid_depth_mask
 from prompose_grasp.geometry.se3 import invert_T, so3_exp, so3_log
 from prompose_grasp.perception.estimator import Estimate, plane_vector
-from prompose_grasp.perception.fit import FitConfig, FitResult, SceneView, fit_pose, protrusion_points
+from prompose_grasp.perception.fit import FitResult, SceneView, fit_pose, protrusion_points
 from prompose_grasp.perception.grounding import SupportPlane
 from prompose_grasp.perception.priors import ShapePrior
-from prompose_grasp.perception.priors.library import articulated_variants, round_body_axis
+from prompose_grasp.perception.priors.library import round_body_axis
 from prompose_grasp.robot.interfaces import RGBDFrame
 
 if TYPE_CHECKING:
@@ -99,17 +87,6 @@ class TrackerConfig:
             to measure the residual.
         fit_iterations: Gauss-Newton iterations of a tracked frame's warm fit (the prediction is close).
         fit_points, fit_prior_points: observed (of the fused cloud) and prior points of that warm fit.
-        background_refit: (off by default) a re-fit started by the turned view while the camera moves
-            slowly (the view turned less than `background_max_step_deg` since the previous frame: a video
-            stream) runs in a worker process, on the second core, while the track goes on; its verdict is
-            applied `background_lag_frames` frames later (waiting for it there if it is not done: the
-            output does not depend on the machine's speed), the re-fitted pose carried to that frame by the
-            track's own motion since. Re-fits for an unexplained handle, re-fits on fast camera motion (the
-            sim dataset's 5-20 deg a frame), and platforms without `fork` run in the update as before.
-            Faster only with a core to spare, and a re-fit that corrects the track does so `lag` frames late:
-            measured in docs/fit.md ("Video rate").
-        background_max_step_deg: see `background_refit` [deg].
-        background_lag_frames: see `background_refit`.
     """
 
     window: int = 16
@@ -129,9 +106,6 @@ class TrackerConfig:
     fit_iterations: int = 8
     fit_points: int = 384
     fit_prior_points: int = 512
-    background_refit: bool = False
-    background_max_step_deg: float = 3.0
-    background_lag_frames: int = 10
 
     def __post_init__(self) -> None:
         if self.window < 1 or self.points_per_view < 8 or self.min_points < 4:
@@ -144,10 +118,6 @@ class TrackerConfig:
             )
         if not 0.0 < self.refit_angle_deg <= 180.0 or self.compare_points < 8:
             raise InvalidInputError("TrackerConfig needs 0 < refit_angle_deg <= 180 and compare_points >= 8")
-        if self.background_lag_frames < 1 or not self.background_max_step_deg >= 0.0:
-            raise InvalidInputError(
-                "TrackerConfig needs background_lag_frames >= 1 and background_max_step_deg >= 0"
-            )
         if not 0.0 < self.blend <= 1.0:
             raise InvalidInputError(f"TrackerConfig.blend must be in (0, 1], got {self.blend}")
         for name in ("roi_margin_m", "surface_margin_m", "plane_clearance_m", "max_rms_m"):
@@ -166,75 +136,6 @@ def _blend(pred: Pose9D, meas: Pose9D, w: float) -> Pose9D:
     R = pred.R @ so3_exp(w * so3_log(pred.R.T @ meas.R))
     size = np.exp((1.0 - w) * np.log(pred.size) + w * np.log(meas.size))
     return Pose9D(R, (1.0 - w) * pred.t + w * meas.t, size)
-
-
-_WORKER: ProcessPoolExecutor | None = None
-_WORKER_LOCK = threading.Lock()
-
-
-def _refit_worker() -> ProcessPoolExecutor | None:
-    """The worker process of background re-fits (one for every tracker of this process), started on first
-    use by `fork` (the child needs no imports and no `__main__` guard); None where `fork` is missing."""
-    global _WORKER
-    with _WORKER_LOCK:
-        if _WORKER is None and "fork" in multiprocessing.get_all_start_methods():
-            _WORKER = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"))
-        return _WORKER
-
-
-def _drop_refit_worker() -> None:
-    """Forget a broken worker (the next background re-fit starts a new one)."""
-    global _WORKER
-    with _WORKER_LOCK:
-        _WORKER = None
-
-
-def _window_score(
-    points: np.ndarray,
-    old_views: np.ndarray,
-    pose: Pose9D,
-    prior: ShapePrior,
-    support: np.ndarray | None,
-    scene: SceneView | None,
-    fit_config: FitConfig,
-    tracker_config: TrackerConfig,
-) -> float:
-    """`Tracker._score` of a pose and its prior (a module function: the background re-fit runs it too)."""
-    cfg = replace(fit_config, n_points_warm=tracker_config.compare_points, warm_iterations=0)
-    fitted = fit_pose(points, prior, cfg, init=pose, support_plane_cam=support, scene=scene)
-    score = fitted.robust_loss
-    if len(old_views):
-        surface = pose.points_to_camera(prior.points[:: max(1, len(prior.points) // 2048)])
-        d, _ = cKDTree(surface).query(old_views, k=1)
-        h = cfg.huber_m
-        huber = np.where(d <= h, d * d, 2.0 * h * d - h * h)
-        score += tracker_config.old_view_weight * float(np.mean(huber))
-    return score
-
-
-def _refit_verdict(
-    points: np.ndarray,
-    old_views: np.ndarray,
-    tracked: Pose9D,
-    prior: ShapePrior,
-    support: np.ndarray | None,
-    scene: SceneView,
-    fit_config: FitConfig,
-    tracker_config: TrackerConfig,
-) -> tuple[Pose9D, int, bool]:
-    """A background re-fit (in the worker): the cold fit of the frame (`Tracker._refit`) and whether it
-    beats the tracked fit `tracked` (`Tracker._score`, `refit_gain`). Returns its pose, the index of its
-    prior in (prior, *articulated_variants(prior)) (the worker's copies are not the caller's objects) and
-    the verdict."""
-    cold = fit_pose(points, prior, fit_config, support_plane_cam=support, scene=scene)
-    cold_prior = cold.prior or prior
-    shapes = (prior, *articulated_variants(prior))
-    k_prior = next((k for k, shp in enumerate(shapes) if shp is cold_prior), 0)
-    args = (support, scene, fit_config, tracker_config)
-    take = _window_score(points, old_views, cold.pose, cold_prior, *args) < (
-        tracker_config.refit_gain * _window_score(points, old_views, tracked, prior, *args)
-    )
-    return cold.pose, k_prior, take
 
 
 class Tracker:
@@ -265,11 +166,6 @@ class Tracker:
         self._prior_cache: tuple[ShapePrior, np.ndarray] | None = None
         self._refit_view: np.ndarray | None = None  # unit object -> camera direction at the last re-fit
         self._protrusion_refit_done = False  # a re-fit for an unexplained handle ran at this view
-        self._last_view: np.ndarray | None = None  # the object -> camera direction of the last frame
-        # a background re-fit in flight: its future, the frame index its verdict is due at, and the pose
-        # the track accepted on the frame it re-fitted
-        self._pending: tuple[Future, int, Pose9D] | None = None
-        self.background_refits = 0
         self.reinitialisations = 0
         self.window_restarts = 0
         self.refits = 0
@@ -302,9 +198,7 @@ class Tracker:
         self._plane = est.support_plane
         self._in_base = frame.T_base_cam is not None
         self._refit_view = self._view_direction(frame, est.pose)
-        self._last_view = self._refit_view
         self._protrusion_refit_done = False
-        self._cancel_pending()
         self._accept(frame, est.pose, self._observed(frame, est.mask))
         return replace(est, timings_ms=dict(est.timings_ms), frame_index=self._frame_index)
 
@@ -318,11 +212,10 @@ class Tracker:
             self._views.clear()
             self._in_base = False
         assert self._pose is not None and self.prior is not None
-        pred = self._background_verdict(self._pose.transformed(T_new_old))
+        pred = self._pose.transformed(T_new_old)
         plane = None if self._plane is None else _plane_in(self._plane, T_new_old)
         mask, points = self._select(frame, pred, plane)
         if len(points) < cfg.min_points:
-            self._cancel_pending()
             return None
         current = self._thin(points)
         fit_config = replace(
@@ -346,13 +239,10 @@ class Tracker:
             self.window_restarts += 1
         jumped = False
         view = self._view_direction(frame, fit.pose)
-        last_view, self._last_view = self._last_view, view
         turned = self._refit_view is not None and float(view @ self._refit_view) < math.cos(
             math.radians(cfg.refit_angle_deg)
         )
-        submitted: Future | None = None
-        # one re-fit at a time: a background one in flight holds the next back until its verdict
-        if self._pending is None and (turned or self._protrusion_missed(frame, pred, plane)):
+        if turned or self._protrusion_missed(frame, pred, plane):
             self._refit_view = view
             self._protrusion_refit_done = not turned
             self.refits += 1
@@ -363,33 +253,20 @@ class Tracker:
             if len(refit_points) < cfg.min_points:
                 refit_mask, refit_points = mask, points
             scene = SceneView(frame.depth_m, frame.intrinsics, refit_mask)
-            step_cos = 1.0 if last_view is None else float(view @ last_view)
-            if (
-                turned
-                and cfg.background_refit
-                and step_cos >= math.cos(math.radians(cfg.background_max_step_deg))
+            cold = self._refit(refit_points, support, scene)
+            if self._score(refit_points, old_views, cold, support, scene) < cfg.refit_gain * self._score(
+                refit_points, old_views, fit, support, scene
             ):
-                submitted = self._submit_refit(refit_points, old_views, fit.pose, support, scene)
-            if submitted is None:
-                cold = self._refit(refit_points, support, scene)
-                if self._score(refit_points, old_views, cold, support, scene) < cfg.refit_gain * self._score(
-                    refit_points, old_views, fit, support, scene
-                ):
-                    fit, jumped, rms = cold, True, math.nan
-                    self.prior = cold.prior or self.prior
-                    self.refits_taken += 1
+                fit, jumped, rms = cold, True, math.nan
+                self.prior = cold.prior or self.prior
+                self.refits_taken += 1
         if math.isnan(rms):
             rms = self._rms(current, fit.pose)
         if not math.isfinite(fit.loss) or rms > cfg.max_rms_m:
-            if submitted is not None:
-                submitted.cancel()
-            self._cancel_pending()
             return None
         self._plane = plane
         # a jump to another basin is not smoothed (half-way between two yaws is neither)
         pose = fit.pose if jumped else _blend(pred, fit.pose, cfg.blend)
-        if submitted is not None:
-            self._pending = (submitted, self._frame_index + cfg.background_lag_frames, pose)
         self._accept(frame, pose, current)
         pose_ms = 1e3 * (time.perf_counter() - t0)
         ys, xs = np.nonzero(mask)
@@ -438,68 +315,6 @@ class Tracker:
         assert self.prior is not None
         return fit_pose(points, self.prior, self.estimator.fit_config, support_plane_cam=support, scene=scene)
 
-    def _submit_refit(
-        self,
-        points: np.ndarray,
-        old_views: np.ndarray,
-        tracked: Pose9D,
-        support: np.ndarray | None,
-        scene: SceneView,
-    ) -> Future | None:
-        """Start a background re-fit of this frame (`_refit_verdict` in the worker process); None when no
-        worker can be had (the caller re-fits in the update)."""
-        assert self.prior is not None
-        worker = _refit_worker()
-        if worker is None:
-            return None
-        args = (
-            points,
-            old_views,
-            tracked,
-            self.prior,
-            support,
-            scene,
-            self.estimator.fit_config,
-            self.config,
-        )
-        try:
-            future = worker.submit(_refit_verdict, *args)
-        except RuntimeError as exc:  # a broken pool (BrokenProcessPool) or one shut down at exit
-            logger.warning("background re-fit unavailable (%s); re-fitting in the update", exc)
-            _drop_refit_worker()
-            return None
-        self.background_refits += 1
-        return future
-
-    def _background_verdict(self, pred: Pose9D) -> Pose9D:
-        """The prediction for this frame, or, when a background re-fit's verdict is due now and took the
-        re-fit, its pose carried to this frame by the track's own motion since the re-fitted frame (the
-        rigid motion from the pose the track accepted there to this prediction), and its prior."""
-        if self._pending is None or self._frame_index < self._pending[1]:
-            return pred
-        future, _, accepted = self._pending
-        self._pending = None
-        try:
-            cold, k_prior, take = future.result()
-        except Exception as exc:  # the worker died (BrokenProcessPool) or the fit raised: carry on without
-            logger.warning("background re-fit of %r failed (%s); its verdict is dropped", self.prompt, exc)
-            _drop_refit_worker()
-            return pred
-        if not take:
-            return pred
-        assert self.prior is not None
-        shapes = (self.prior, *articulated_variants(self.prior))
-        self.prior = shapes[k_prior] if k_prior < len(shapes) else self.prior
-        self.refits_taken += 1
-        R = pred.R @ accepted.R.T  # the track's motion: pred = (R, t) applied to the accepted pose
-        t = pred.t - R @ accepted.t
-        return Pose9D(R @ cold.R, R @ cold.t + t, cold.size)
-
-    def _cancel_pending(self) -> None:
-        if self._pending is not None:
-            self._pending[0].cancel()
-            self._pending = None
-
     def _fused_views(self, frame: RGBDFrame, pred: Pose9D) -> list[np.ndarray]:
         """The window's views in this camera frame."""
         if self._in_base:
@@ -527,11 +342,18 @@ class Tracker:
         directions, this camera's visibility; no iterations) plus the Huber mean distance of the earlier
         views' points to the posed prior (one direction: which prior points those cameras saw is not
         modelled, but every observed point lies on the object's surface)."""
+        cfg = replace(self.estimator.fit_config, n_points_warm=self.config.compare_points, warm_iterations=0)
         prior = fit.prior or self.prior
         assert prior is not None
-        return _window_score(
-            points, old_views, fit.pose, prior, support, scene, self.estimator.fit_config, self.config
-        )
+        fitted = fit_pose(points, prior, cfg, init=fit.pose, support_plane_cam=support, scene=scene)
+        score = fitted.robust_loss
+        if len(old_views):
+            surface = fit.pose.points_to_camera(prior.points[:: max(1, len(prior.points) // 2048)])
+            d, _ = cKDTree(surface).query(old_views, k=1)
+            h = cfg.huber_m
+            huber = np.where(d <= h, d * d, 2.0 * h * d - h * h)
+            score += self.config.old_view_weight * float(np.mean(huber))
+        return score
 
     def _rms(self, points_cam: np.ndarray, pose: Pose9D) -> float:
         """Root-mean-square distance of the points to the posed prior's surface samples [m]."""

@@ -286,59 +286,17 @@ def test_a_track_on_the_wrong_yaw_is_turned_back_by_the_refit(refit):
         assert _yaw_error_deg(est.pose, gt) > 90.0
 
 
-def test_background_verdict_carries_the_refit_by_the_track_motion():
-    # A finished background re-fit whose verdict took the re-fit: on the due frame the prediction becomes
-    # the re-fitted pose moved by the track's own motion since the re-fitted frame (the rigid map from the
-    # pose the track accepted there to this frame's prediction), not the re-fitted pose as it was.
-    from concurrent.futures import Future
-
-    library = PriorLibrary()
-    tracker = Tracker(ProMPose(Grounder(), library), "mug", prior=library.family_prior("mug"))
-    rng = np.random.default_rng(0)
-    accepted = Pose9D(_rot(rng), [0.05, -0.02, 0.8], [0.1, 0.09, 0.08])
-    cold = Pose9D(_rot(rng), [0.06, -0.01, 0.79], [0.11, 0.1, 0.085])
-    D = np.eye(4)
-    D[:3, :3], D[:3, 3] = _rot(rng), [0.01, 0.02, -0.03]  # the track's motion from that frame to this one
-    pred = accepted.transformed(D)
-    done: Future = Future()
-    done.set_result((cold, 0, True))
-    tracker._frame_index = 12
-    tracker._pending = (done, 13, accepted)
-    assert tracker._background_verdict(pred) is pred  # not due yet: the track goes on
-    tracker._frame_index = 13
-    carried = tracker._background_verdict(pred)
-    expected = cold.transformed(D)
-    # float round-off of two 4x4 products (1e-12 is far below any pose error that matters)
-    np.testing.assert_allclose(carried.R, expected.R, atol=1e-12)
-    np.testing.assert_allclose(carried.t, expected.t, atol=1e-12)
-    np.testing.assert_array_equal(carried.size, cold.size)  # the re-fit's size, as fitted
-    assert tracker.refits_taken == 1 and tracker._pending is None
-    # a verdict that keeps the tracked fit changes nothing
-    kept: Future = Future()
-    kept.set_result((cold, 0, False))
-    tracker._pending = (kept, 13, accepted)
-    assert tracker._background_verdict(pred) is pred and tracker.refits_taken == 1
-
-
-def _rot(rng) -> np.ndarray:
-    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
-    return q * np.sign(np.linalg.det(q))
-
-
-@pytest.mark.parametrize("background", [True, False])
-def test_slow_camera_refits_in_the_background_and_turns_the_track_back_later(background):
+def test_slow_camera_refits_once_the_view_has_turned_and_turns_the_track_back():
     # The mug of test_a_track_on_the_wrong_yaw_is_turned_back_by_the_refit, the track on the wrong yaw, but
     # a camera turning 2 deg a frame (a video stream): the re-fit starts once the view has turned by
-    # `refit_angle_deg` (8 here, to keep the test short: frame 4) and, below `background_max_step_deg` (3) a
-    # frame, runs in the worker process; its verdict is applied `background_lag_frames` (2) frames later,
-    # carried there by the track's motion. In the update (`background_refit` off) it is taken at once.
+    # `refit_angle_deg` (8 here, to keep the test short: frame 4) and its verdict is taken on that frame.
     library = PriorLibrary()
     prior = library.family_prior("mug")
     size = np.asarray(prior.typical_size_m, dtype=np.float64)
     gt_world = Pose9D(np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]), [0.0, 0.0, size[1] / 2], size)
     rng = np.random.default_rng(5)
     frames = [_frame(gt_world, prior.mesh, _camera(math.radians(-90.0 + 2.0 * k)), rng) for k in range(8)]
-    config = TrackerConfig(refit_angle_deg=8.0, background_refit=background, background_lag_frames=2)
+    config = TrackerConfig(refit_angle_deg=8.0)
     tracker = Tracker(ProMPose(Grounder(), PriorLibrary()), "mug", prior=prior, config=config)
     frame0, mask0 = frames[0]
     first = tracker.update(frame0, mask=mask0)
@@ -352,10 +310,10 @@ def test_slow_camera_refits_in_the_background_and_turns_the_track_back_later(bac
         refits.append(tracker.refits)
         taken.append(tracker.refits_taken)
         errors.append(_yaw_error_deg(est.pose, gt_world.transformed(np.linalg.inv(frame.T_base_cam))))
-    assert refits[-1] == 1 and tracker.background_refits == (1 if background else 0)
+    assert refits[-1] == 1
     k_refit = refits.index(1)
     assert 3 <= k_refit <= 5  # 8 deg turned: frame 4, give or take the fitted poses' noise
-    k_taken = k_refit + 2 if background else k_refit  # the verdict's frame
+    k_taken = k_refit  # the verdict's frame
     assert taken == [0] * k_taken + [1] * (8 - k_taken)
     # the handle stays on the wrong side until the verdict (> 90 deg), then within 15 deg of the truth (the
     # bar of the 12-deg-a-frame test above) from that frame on
