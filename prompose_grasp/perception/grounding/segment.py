@@ -468,20 +468,17 @@ def _inner_floor(
         low = np.isfinite(z) & (h > -_INNER_FLOOR_SIGMAS * config.sigma_m(z))
     same = _colour_distance(lab, ref_lab) < config.colour_edge
     floor = inside.view(bool) & low & same & ~mask
-    body = points[mask & _above(points, plane, config)]
-    if not floor.any() or len(body) < 3:
+    if not floor.any():
         return floor
-    # footprint: the body's points and the candidates in plane coordinates (two axes orthogonal to the normal)
-    n = plane.normal_cam
-    e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    basis = np.column_stack([e1, np.cross(n, e1)])
+    # the footprint: the body's points seen from above, in the plane's (right, forward) coordinates
+    frame = PlaneFrame(plane)
+    body = frame.coords(points[mask & _above(points, plane, config)])[:, :2]
     try:
-        edges = ConvexHull(body @ basis).equations  # a x + b y + c <= 0 inside, (a, b) unit
-    except QhullError:  # all on a line: no area to hold a floor
+        edges = ConvexHull(body).equations  # a x + b y + c <= 0 inside, (a, b) unit
+    except (QhullError, ValueError):  # fewer than 3 points, or all on a line: no area to hold a floor
         return np.zeros_like(floor)
     rows, cols = np.nonzero(floor)
-    xy = points[rows, cols] @ basis
+    xy = frame.coords(points[rows, cols])[:, :2]
     within = np.all(xy @ edges[:, :2].T + edges[:, 2] <= _FLOOR_FOOTPRINT_MARGIN_M, axis=1)
     floor[rows[~within], cols[~within]] = False
     return floor
