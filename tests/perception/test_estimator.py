@@ -252,16 +252,25 @@ def _yaw_error_deg(est: Pose9D, gt: Pose9D) -> float:
     return math.degrees(math.acos(float(np.clip(est.R[:, 0] @ gt.R[:, 0], -1.0, 1.0))))
 
 
-@pytest.mark.parametrize("refit", [True, False])
-def test_a_track_on_the_wrong_yaw_is_turned_back_by_the_refit(refit):
-    library = PriorLibrary()
-    prior = library.family_prior("mug")
-    # upright on the table (object +y = world +z), the handle (object +x) to the side the orbit's first
-    # camera sees it from
+def _mug_orbit(step_deg: float, n_frames: int):
+    """The family mug upright on the table (object +y = world +z), its handle (object +x) to the side the
+    orbit's first camera sees it from, and `n_frames` views of it, the camera turning `step_deg` a frame."""
+    prior = PriorLibrary().family_prior("mug")
     size = np.asarray(prior.typical_size_m, dtype=np.float64)
     gt_world = Pose9D(np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]), [0.0, 0.0, size[1] / 2], size)
     rng = np.random.default_rng(5)
-    frames = [_frame(gt_world, prior.mesh, _camera(math.radians(-90.0 + 12.0 * k)), rng) for k in range(4)]
+    cams = [_camera(math.radians(-90.0 + step_deg * k)) for k in range(n_frames)]
+    return prior, gt_world, [_frame(gt_world, prior.mesh, cam, rng) for cam in cams]
+
+
+def _on_the_other_side(pose: Pose9D) -> Pose9D:
+    """The pose turned half round the mug's axis: the handle on the other side, the same footprint."""
+    return Pose9D(pose.R @ np.diag([-1.0, 1.0, -1.0]), pose.t, pose.size)
+
+
+@pytest.mark.parametrize("refit", [True, False])
+def test_a_track_on_the_wrong_yaw_is_turned_back_by_the_refit(refit):
+    prior, gt_world, frames = _mug_orbit(12.0, 4)
     estimator = ProMPose(Grounder(), PriorLibrary())  # no text encoder: masks are given
     config = TrackerConfig() if refit else TrackerConfig(refit_angle_deg=180.0)
     tracker = Tracker(estimator, "mug", prior=prior, config=config)
@@ -271,7 +280,7 @@ def test_a_track_on_the_wrong_yaw_is_turned_back_by_the_refit(refit):
     assert _yaw_error_deg(first.pose, gt0) < 15.0  # the handle is in view: the cold fit finds it
     # as if the first frame had missed the handle: the track goes on with the handle on the other side
     # (a half turn about the mug's axis; the footprint is the same, so the points alone do not object)
-    tracker._pose = Pose9D(first.pose.R @ np.diag([-1.0, 1.0, -1.0]), first.pose.t, first.pose.size)
+    tracker._pose = _on_the_other_side(first.pose)
     for frame, _ in frames[1:]:
         est = tracker.update(frame)
     gt = gt_world.transformed(np.linalg.inv(frames[-1][0].T_base_cam))
@@ -290,17 +299,11 @@ def test_slow_camera_refits_once_the_view_has_turned_and_turns_the_track_back():
     # The mug of test_a_track_on_the_wrong_yaw_is_turned_back_by_the_refit, the track on the wrong yaw, but
     # a camera turning 2 deg a frame (a video stream): the re-fit starts once the view has turned by
     # `refit_angle_deg` (8 here, to keep the test short: frame 4) and its verdict is taken on that frame.
-    library = PriorLibrary()
-    prior = library.family_prior("mug")
-    size = np.asarray(prior.typical_size_m, dtype=np.float64)
-    gt_world = Pose9D(np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]), [0.0, 0.0, size[1] / 2], size)
-    rng = np.random.default_rng(5)
-    frames = [_frame(gt_world, prior.mesh, _camera(math.radians(-90.0 + 2.0 * k)), rng) for k in range(8)]
+    prior, gt_world, frames = _mug_orbit(2.0, 8)
     config = TrackerConfig(refit_angle_deg=8.0)
     tracker = Tracker(ProMPose(Grounder(), PriorLibrary()), "mug", prior=prior, config=config)
     frame0, mask0 = frames[0]
-    first = tracker.update(frame0, mask=mask0)
-    tracker._pose = Pose9D(first.pose.R @ np.diag([-1.0, 1.0, -1.0]), first.pose.t, first.pose.size)
+    tracker._pose = _on_the_other_side(tracker.update(frame0, mask=mask0).pose)
     # as if the unexplained-handle re-fit had run at this view already (it would turn the track back on
     # frame 1, in the update): only the turned view starts the re-fit here
     tracker._protrusion_refit_done = True
@@ -313,12 +316,11 @@ def test_slow_camera_refits_once_the_view_has_turned_and_turns_the_track_back():
     assert refits[-1] == 1
     k_refit = refits.index(1)
     assert 3 <= k_refit <= 5  # 8 deg turned: frame 4, give or take the fitted poses' noise
-    k_taken = k_refit  # the verdict's frame
-    assert taken == [0] * k_taken + [1] * (8 - k_taken)
-    # the handle stays on the wrong side until the verdict (> 90 deg), then within 15 deg of the truth (the
-    # bar of the 12-deg-a-frame test above) from that frame on
-    assert min(errors[:k_taken]) > 90.0
-    assert max(errors[k_taken:]) < 15.0
+    assert taken == [0] * k_refit + [1] * (8 - k_refit)  # the verdict is taken on the re-fitted frame
+    # the handle stays on the wrong side until then (> 90 deg), then within 15 deg of the truth (the bar of
+    # the 12-deg-a-frame test above) from that frame on
+    assert min(errors[:k_refit]) > 90.0
+    assert max(errors[k_refit:]) < 15.0
 
 
 def test_tracked_selection_is_the_plain_back_projection(orbit):
