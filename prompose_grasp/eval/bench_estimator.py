@@ -71,6 +71,11 @@ def _percentiles_ms(samples_s: list[float]) -> dict[str, float]:
             "mean_ms": float(np.mean(a))}  # fmt: skip
 
 
+def _per_second(samples_s: list[float], stat) -> float:
+    """1 / `stat` of durations [s] (a rate per second), NaN without samples."""
+    return float(1.0 / stat(samples_s)) if samples_s else float("nan")
+
+
 def parse_methods(methods: str | Sequence[str] | None) -> tuple[str, ...]:
     """The benchmark rows to run, in `METHODS` order: None (or an empty string) is all of them; a string is a
     comma-separated list. Unknown names raise `UnknownNameError` listing the valid ones."""
@@ -156,12 +161,12 @@ def run_estimator_benchmark(
         "y_symmetric_classes": list(ysym),
         "tables": tables,
         "timing": {k: _percentiles_ms(v) for k, v in times.items()},
-        "tracking_fps": float(1.0 / np.mean(track_s)) if track_s else float("nan"),
+        "tracking_fps": _per_second(track_s, np.mean),
         # the typical frame (the mean holds the re-fits and re-groundings; docs/fit.md, temporal refinement)
-        "tracking_fps_median": float(1.0 / np.median(track_s)) if track_s else float("nan"),
+        "tracking_fps_median": _per_second(track_s, np.median),
         # the same for the tracker alone (`ours_tracked_oracle_mask`: no re-grounding on frame 0)
-        "tracking_oracle_mask_fps": float(1.0 / np.mean(oracle_s)) if oracle_s else float("nan"),
-        "tracking_oracle_mask_fps_median": float(1.0 / np.median(oracle_s)) if oracle_s else float("nan"),
+        "tracking_oracle_mask_fps": _per_second(oracle_s, np.mean),
+        "tracking_oracle_mask_fps_median": _per_second(oracle_s, np.median),
         "machine": {"platform": platform.platform(), "python": sys.version.split()[0]},
     }
 

@@ -654,22 +654,15 @@ def _jacobian(pb: _Problem, st: _State, terms: tuple) -> tuple[np.ndarray, np.nd
     return H, g
 
 
-def _containment(pb: _Problem, st: _State, s: np.ndarray, t: np.ndarray, want_jacobian: bool):
-    """Containment term: (cost, J (K, 9) or None, weights (K,), residuals (K,)).
+def _containment_cost(pb: _Problem, st: _State, s: np.ndarray, t: np.ndarray) -> tuple[float, tuple | None]:
+    """Containment term's cost, and what its Jacobian needs (`_containment_jacobian`; None when no point
+    pulls).
 
     Residual per observed point y and box axis i: e = |l_i| - s_i / 2 - margin when positive, with
     l = R^T (y - t) the point in box axes; Huber-weighted, averaged over the observed points, times
     `contain_weight`. Parameters as in `_normal_equations` (left rotation increment, centre or bottom,
     log size); with a plane, the centre moves with log s_y (bottom held).
     """
-    cost, part = _containment_cost(pb, st, s, t)
-    if not want_jacobian or part is None:
-        return cost, None, None, None
-    return (cost, *_containment_jacobian(pb, st, s, part))
-
-
-def _containment_cost(pb: _Problem, st: _State, s: np.ndarray, t: np.ndarray) -> tuple[float, tuple | None]:
-    """`_containment`'s cost, and what its Jacobian needs (None when no point pulls)."""
     lam = pb.config.contain_weight
     if lam <= 0.0:
         return 0.0, None
@@ -694,7 +687,7 @@ def _containment_cost(pb: _Problem, st: _State, s: np.ndarray, t: np.ndarray) ->
 
 
 def _containment_jacobian(pb: _Problem, st: _State, s: np.ndarray, part: tuple):
-    """`_containment`'s (J (K, 9), weights (K,), residuals (K,)) from `_containment_cost`'s terms."""
+    """The containment term's (J (K, 9), weights (K,), residuals (K,)) from `_containment_cost`'s terms."""
     d, loc, k_pt, k_ax, e = part
     sg = np.sign(loc[k_pt, k_ax])
     Ri = st.R[:, k_ax].T  # (K, 3) the box axis of each residual
