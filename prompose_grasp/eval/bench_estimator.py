@@ -6,9 +6,11 @@ Per frame of the split (a dataset written by `python -m sim.dataset`; test categ
 
 - `ours_oracle_mask`: `ProMPose.estimate(frame, prompt, mask=<ground-truth mask>)` per object. The *oracle*
   mask isolates the pose fit from grounding. The prior is generated on the object's first frame and reused.
+  Ranked for the AP by the fit's `Estimate.coverage`.
 - `obb_oracle_mask`: the baseline (`eval.baselines.obb_baseline`) on the same points and support plane.
 - `ours`: `ProMPose.estimate_all(frame, category)` with our grounding: up to `--candidates` objects per
-  category present in the frame, scored by grounding (false positives count, as in detection benchmarks).
+  category present in the frame, ranked by grounding score times coverage (false positives count, as in
+  detection benchmarks).
 - `obb`: the baseline on our grounding's masks.
 - `ours_tracked`: `ProMPose.track` over each scene's frames for every object prompt of the scene; the
   camera pose `T_base_cam` is known (the world plays the robot base, as for a wrist camera with forward
@@ -171,6 +173,13 @@ def run_estimator_benchmark(
     }
 
 
+def _confidence(grounding_score: float, coverage: float) -> float:
+    """A prediction's detection score for the AP: the grounding score (1 for an oracle mask) times the fit's
+    coverage (`Estimate.coverage`), as detection scores times pose quality rank 6D pose predictions. The
+    baselines keep the grounding score alone: the coverage belongs to our fit."""
+    return grounding_score * (coverage if np.isfinite(coverage) else 1.0)
+
+
 def _frame_predictions(
     estimator: ProMPose,
     sf: SyntheticFrame,
@@ -197,7 +206,7 @@ def _frame_predictions(
         est = estimator.estimate(frame, obj.prompt, prior=priors.get(obj.instance_id), mask=oracle_mask)
         times["oracle_mask_estimate"].append(time.perf_counter() - t0)
         priors[obj.instance_id] = est.prior
-        preds["ours_oracle_mask"].append((cls, est.pose, 1.0))
+        preds["ours_oracle_mask"].append((cls, est.pose, _confidence(1.0, est.coverage)))
         t0 = time.perf_counter()
         preds["obb_oracle_mask"].append((cls, obb_baseline(points, est.support_plane), 1.0))
         times["obb"].append(time.perf_counter() - t0)
@@ -208,7 +217,7 @@ def _frame_predictions(
         estimates = estimator.estimate_all(frame, category, max_objects=candidates)
         times["grounded_estimate_all"].append(time.perf_counter() - t0)
         for est in estimates:
-            preds["ours"].append((cls, est.pose, est.score))
+            preds["ours"].append((cls, est.pose, _confidence(est.score, est.coverage)))
             points = back_project(frame.depth_m, frame.intrinsics, mask=est.mask)
             preds["obb"].append((cls, obb_baseline(points, est.support_plane), est.score))
     return preds

@@ -74,6 +74,11 @@ class Estimate:
         timings_ms: per-stage wall time {"grounding", "prior", "pose", "total"} [ms].
         frame_index: position in the sequence (0 for single frames).
         support_plane: the plane the object stands on, in the camera frame, when one was found.
+        coverage: the fit's confidence in [0, 1] (`fit.mask_coverage`): the fraction of the fitted shape's
+            camera-facing surface that the mask shows. Low when the object is cut by the image border or
+            occluded (the hidden part of the box comes from the prior alone) or when the box outgrows its
+            points; another view then helps. NaN on tracked updates after the first frame, which rest on the
+            window's fused views rather than one mask.
     """
 
     pose: Pose9D
@@ -85,6 +90,7 @@ class Estimate:
     timings_ms: dict[str, float] = field(default_factory=dict)
     frame_index: int = 0
     support_plane: SupportPlane | None = None
+    coverage: float = math.nan
 
     @cached_property
     def mesh_cam(self) -> trimesh.Trimesh:
@@ -372,6 +378,7 @@ class ProMPose:
             timings_ms=timings_ms,
             frame_index=frame_index,
             support_plane=grounding.support_plane,
+            coverage=fit.coverage,
         )
 
     def _network_pose(

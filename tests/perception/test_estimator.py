@@ -71,6 +71,7 @@ def test_user_mask_skips_grounding_and_keeps_the_object(estimator, frame, scene)
     est = estimator.estimate(frame, "box", mask=mask)
     assert est.score == 1.0 and np.array_equal(est.mask, mask)
     assert est.pose.iou(scene.gt_poses["box"]) >= MIN_IOU
+    assert est.coverage > 0.9  # the box stands in full view: its mask shows all its facing surface
     with pytest.raises(InvalidInputError, match="mask must be"):
         estimator.estimate(frame, "box", mask=mask[:10])
     with pytest.raises(ObjectNotFoundError, match="valid depth points"):
@@ -209,6 +210,7 @@ def test_tracked_window_follows_the_orbit_and_fuses_the_size(orbit):
     errors, single_errors = [], []
     for k, (frame, mask) in enumerate(frames):
         est = tracker.update(frame, mask=mask if k == 0 else None)
+        assert math.isfinite(est.coverage) == (k == 0)  # one mask's measure: the first frame's fit only
         T_cam_world = np.linalg.inv(frame.T_base_cam)
         gt = gt_world.transformed(T_cam_world)
         errors.append(float(np.max(np.abs(np.sort(est.pose.size) / np.sort(gt.size) - 1.0))))

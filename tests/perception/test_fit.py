@@ -22,6 +22,7 @@ from prompose_grasp.perception.fit import (
     SceneView,
     canonicalize_symmetry,
     fit_pose,
+    mask_coverage,
     protrusion_points,
 )
 from prompose_grasp.perception.fit.core import (
@@ -504,6 +505,37 @@ def test_occluded_object_keeps_its_size(library: PriorLibrary) -> None:
     # the radius within 10 % (SIZE_RTOL) with the scene; without it noticeably smaller
     assert with_scene.pose.size[0] == pytest.approx(gt.size[0], rel=SIZE_RTOL)
     assert _iou(with_scene.pose, gt, "y_continuous") > _iou(without.pose, gt, "y_continuous")
+    # the fit says how much of its box rests on the prior alone: about the share the occluder leaves seen
+    # (0.52 measured, visible_share's bounds above)
+    assert 0.2 < with_scene.coverage < 0.7
+
+
+def test_mask_coverage_is_the_seen_share_of_the_facing_surface(library: PriorLibrary) -> None:
+    # A can rendered alone: its mask shows the whole side the camera faces. Cut at the column of its axis
+    # the mask shows about half of it, empty none; the fit reports the coverage of its own pose.
+    prior = library.family_prior("can")
+    rng = np.random.default_rng(5)
+    R, t, up = _mug_pose(rng, handle_from_away_deg=0.0)
+    gt = Pose9D(R, t, prior.typical_size_m)
+    samples, _ = _dense_surface(prior, 60000, 4)
+    plane = _plane_below(gt, up)
+    depth, label = _render([(gt.points_to_camera(samples), 1)], plane)
+    mask = label == 1
+    # 0.97: a prior point on the silhouette may round to the pixel just outside it (a ring one pixel wide,
+    # under 3 % of a can ~60 pixels across)
+    assert mask_coverage(gt, prior, SceneView(depth, _CAM, mask)) > 0.97
+    u_axis = int(_CAM.fx * t[0] / t[2] + _CAM.cx)
+    half = mask.copy()
+    half[:, :u_axis] = False
+    # +-0.1: the camera looks down 30-65 deg on the can, so the two halves of its seen side differ by
+    # perspective only (a few %); the top face adds to both halves alike
+    assert mask_coverage(gt, prior, SceneView(depth, _CAM, half)) == pytest.approx(0.5, abs=0.1)
+    assert mask_coverage(gt, prior, SceneView(depth, _CAM, np.zeros_like(mask))) == 0.0
+    pts = _observed(depth, mask, rng)
+    fit = fit_pose(pts, prior, support_plane_cam=plane, scene=SceneView(depth, _CAM, mask))
+    assert fit.coverage == mask_coverage(fit.pose, fit.prior, SceneView(depth, _CAM, mask))
+    assert fit.coverage > 0.9  # the fit within the bounds above covers the mask as the truth does
+    assert math.isnan(fit_pose(pts, prior, support_plane_cam=plane).coverage)  # no scene, no coverage
 
 
 def test_observable_points_know_the_image_and_occluders(library: PriorLibrary) -> None:

@@ -7,6 +7,7 @@ from prompose_grasp.perception.fit.core import (
     SceneView,
     canonicalize_symmetry,
     fit_pose,
+    mask_coverage,
     protrusion_points,
     visible_prior_mask,
 )
@@ -18,6 +19,7 @@ __all__ = [
     "SceneView",
     "canonicalize_symmetry",
     "fit_pose",
+    "mask_coverage",
     "protrusion_points",
     "visible_prior_mask",
 ]

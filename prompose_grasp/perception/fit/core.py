@@ -59,6 +59,7 @@ __all__ = [
     "SceneView",
     "canonicalize_symmetry",
     "fit_pose",
+    "mask_coverage",
     "protrusion_points",
     "visible_prior_mask",
 ]
@@ -300,6 +301,8 @@ class FitResult:
         prior: the prior whose shape won: the one passed in, or one of its articulated variants
             (`priors.library.articulated_variants`: a laptop's screen at another opening); pass it to the
             next warm-started call.
+        coverage: `mask_coverage` of the result in the scene passed to `fit_pose`, in [0, 1]; NaN without
+            a scene.
     """
 
     pose: Pose9D
@@ -314,6 +317,7 @@ class FitResult:
     mode: str
     time_s: float
     prior: ShapePrior | None = None
+    coverage: float = math.nan
 
 
 @dataclass(frozen=True, eq=False)
@@ -356,21 +360,26 @@ def _observable(scene: SceneView, x: np.ndarray, margin: float) -> np.ndarray:
     """(M,) bool: posed prior points `x` (M, 3) the camera could have seen, given the scene: inside the
     image, on the object's mask, or on a pixel with a depth reading not nearer than the point by more than
     `margin` (nothing else in front of it)."""
-    intr = scene.intrinsics
+    ok, iu, iv = _pixels(scene.intrinsics, x)
+    out = np.zeros(len(x), dtype=bool)
+    d = scene.depth_m[iv, iu]
+    on_mask = scene.mask[iv, iu]
+    with np.errstate(invalid="ignore"):
+        free = (d > 0.0) & (d >= x[ok, 2] - margin)  # NaN (no reading) compares False
+    out[ok] = on_mask | free
+    return out
+
+
+def _pixels(intr: CameraIntrinsics, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Camera-frame points `x` (M, 3) -> (M,) bool in front of the camera and inside the image, and the
+    column and row index of the pixel of each of those (nearest pixel centre)."""
     z = x[:, 2]
     ok = z > 1e-6
     zs = np.where(ok, z, 1.0)
     u = np.floor(intr.fx * x[:, 0] / zs + intr.cx + 0.5)
     v = np.floor(intr.fy * x[:, 1] / zs + intr.cy + 0.5)
     ok &= (u >= 0) & (u < intr.width) & (v >= 0) & (v < intr.height)
-    out = np.zeros(len(x), dtype=bool)
-    iu, iv = u[ok].astype(np.intp), v[ok].astype(np.intp)
-    d = scene.depth_m[iv, iu]
-    on_mask = scene.mask[iv, iu]
-    with np.errstate(invalid="ignore"):
-        free = (d > 0.0) & (d >= z[ok] - margin)  # NaN (no reading) compares False
-    out[ok] = on_mask | free
-    return out
+    return ok, u[ok].astype(np.intp), v[ok].astype(np.intp)
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -476,6 +485,24 @@ def visible_prior_mask(pose: Pose9D, normals_unit: ArrayLike, points_unit: Array
     n_cam = (Pn / pose.size) @ pose.R.T
     p_cam = (P * pose.size) @ pose.R.T + pose.t
     return np.einsum("ij,ij->i", n_cam, p_cam) < 0.0
+
+
+def mask_coverage(pose: Pose9D, prior: ShapePrior, scene: SceneView) -> float:
+    """Fraction of the fitted shape's camera-facing surface that the object's mask shows, in [0, 1].
+
+    The prior's surface points are posed by `pose`; of those facing the camera (`visible_prior_mask`), the
+    fraction projecting inside the image onto `scene.mask`. Near 1 when the whole side the camera faces is
+    seen. Lower when part of it falls outside the image or behind an occluder, where the amodal box rests on
+    the prior alone, or when the box is larger than the points support: a confidence in the fit, measured
+    (docs/fit.md) to rank right and wrong boxes apart. NaN when no prior point faces the camera.
+    """
+    P = np.asarray(prior.points, dtype=np.float64)
+    x = pose.points_to_camera(P[visible_prior_mask(pose, prior.normals, P)])
+    x = x[x[:, 2] > 1e-6]
+    if len(x) == 0:
+        return math.nan
+    _, iu, iv = _pixels(scene.intrinsics, x)
+    return float(np.count_nonzero(scene.mask[iv, iu])) / len(x)
 
 
 @dataclass
@@ -1357,6 +1384,7 @@ def fit_pose(
         mode=mode,
         time_s=time.perf_counter() - t0,
         prior=shapes[k_best],
+        coverage=math.nan if scene is None else mask_coverage(pose, shapes[k_best], scene),
     )
     log.debug("fit %s: loss %.3g m^2, %d hypotheses, %d iterations", prior.name, result.loss,
               result.hypotheses, result.iterations)  # fmt: skip
