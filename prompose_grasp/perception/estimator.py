@@ -31,6 +31,7 @@ from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.pointcloud import back_project, valid_depth_mask
 from prompose_grasp.perception.fit import FitConfig, SceneView, fit_pose
 from prompose_grasp.perception.grounding import Candidate, Grounder, GroundingResult, SupportPlane
+from prompose_grasp.perception.grounding.plane import plane_under_object
 from prompose_grasp.perception.priors import PriorLibrary, ShapePrior
 from prompose_grasp.robot.interfaces import RGBDFrame
 
@@ -359,12 +360,15 @@ class ProMPose:
             init = self._network_pose(candidate, prior, *network_input)
             timings_ms["network"] = _ms(t0)
             t0 = time.perf_counter()  # "pose" is the fit alone
+        support = grounding.support_plane
+        if support is not None and scene is not None:  # the frame's plane, or a table top right under it
+            support = plane_under_object(support, points, scene.depth_m, scene.intrinsics, scene.mask)
         fit = fit_pose(
             points,
             prior,
             self.fit_config,
             init=init,
-            support_plane_cam=plane_vector(grounding.support_plane),
+            support_plane_cam=plane_vector(support),
             scene=scene,
         )
         timings_ms["pose"] = _ms(t0)
@@ -377,7 +381,7 @@ class ProMPose:
             fit_loss=float(fit.loss) if math.isfinite(fit.loss) else math.inf,
             timings_ms=timings_ms,
             frame_index=frame_index,
-            support_plane=grounding.support_plane,
+            support_plane=support,
             coverage=fit.coverage,
         )
 

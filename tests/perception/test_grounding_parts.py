@@ -11,7 +11,8 @@ import pytest
 
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import depth_to_point_map
-from prompose_grasp.perception.grounding import GroundingConfig, ground, parse_prompt
+from prompose_grasp.perception.estimator import ProMPose
+from prompose_grasp.perception.grounding import Grounder, GroundingConfig, SupportPlane, ground, parse_prompt
 from prompose_grasp.perception.grounding.describe import (
     HEIGHT_BINS,
     PALETTE,
@@ -21,7 +22,12 @@ from prompose_grasp.perception.grounding.describe import (
     size_class,
     top_height_histogram,
 )
-from prompose_grasp.perception.grounding.plane import PlaneFrame, fit_support_plane, plane_candidates
+from prompose_grasp.perception.grounding.plane import (
+    PlaneFrame,
+    fit_support_plane,
+    plane_candidates,
+    plane_under_object,
+)
 from prompose_grasp.perception.grounding.score import (
     CandidateFeatures,
     NounPrior,
@@ -30,6 +36,8 @@ from prompose_grasp.perception.grounding.score import (
     score_candidates,
 )
 from prompose_grasp.perception.grounding.segment import concave_creases
+from prompose_grasp.perception.priors import PriorLibrary
+from prompose_grasp.robot import RGBDFrame
 
 K = CameraIntrinsics(400.0, 400.0, 159.5, 119.5, 320, 240)
 
@@ -552,3 +560,76 @@ def test_real_frame_support_plane_and_named_object(name, real_grounder):
     # cracker box, 3 % for the mustard bottle on the yellowish wood): at most 5 %.
     if "mug" not in prompt:
         assert (h < 0.005).mean() < 0.05
+
+
+# ------------------------------------------------------------------------------- the plane under an object
+
+#: World boxes (lo, hi) [m], z up: the floor; a 50 x 50 cm table top 72 cm high; a 10 x 8 x 12 cm box on it.
+_FLOOR = (np.array([-5.0, -5.0, -0.01]), np.array([5.0, 5.0, 0.0]))
+_TABLE_TOP = (np.array([-0.25, -0.25, 0.70]), np.array([0.25, 0.25, 0.72]))
+_OBJECT = (np.array([-0.05, -0.04, 0.72]), np.array([0.05, 0.04, 0.84]))
+#: A board 8 cm high standing 2 cm in front of the box: from the camera it hides the box's bottom 6 cm.
+_BOARD = (np.array([-0.15, -0.09, 0.72]), np.array([0.15, -0.06, 0.80]))
+_EYE = np.array([0.0, -0.9, 1.45])
+
+
+def _raycast(boxes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact depth (H, W) [m] and the index of the box seen at each pixel, by slab intersection of each
+    pixel's ray with axis-aligned world boxes; and R_world_cam of a camera at `_EYE` looking at the table."""
+    z = np.array([0.0, 0.0, 0.75]) - _EYE
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    R = np.column_stack([x, np.cross(z, x), z])
+    u, v = np.meshgrid(np.arange(K.width), np.arange(K.height))
+    rays = np.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, np.ones_like(u, dtype=float)], -1) @ R.T
+    depth = np.full(rays.shape[:2], np.inf)
+    label = np.full(rays.shape[:2], -1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k, (lo, hi) in enumerate(boxes):
+            t1, t2 = (lo - _EYE) / rays, (hi - _EYE) / rays
+            t_in = np.nanmax(np.minimum(t1, t2), axis=-1)
+            t_out = np.nanmin(np.maximum(t1, t2), axis=-1)
+            hit = (t_out >= t_in) & (t_in > 0) & (t_in < depth)  # z-depth: the rays have camera z = 1
+            depth[hit], label[hit] = t_in[hit], k
+    return np.where(np.isfinite(depth), depth, 0.0), label, R
+
+
+def _plane_at(R: np.ndarray, height_m: float) -> SupportPlane:
+    """The horizontal plane z = height_m in the camera frame of `_raycast`."""
+    return SupportPlane(normal_cam=R.T @ [0.0, 0.0, 1.0], offset_m=_EYE[2] - height_m, inlier_fraction=0.5)
+
+
+def test_a_table_top_under_the_object_is_its_support_not_the_floor():
+    # The frame's plane is the floor (a small table seen over a larger floor); the box stands on the table
+    # top, 72 cm higher. Its support is the table top: parallel to the floor, at the table's height.
+    depth, label, R = _raycast([_FLOOR, _TABLE_TOP, _OBJECT])
+    mask = label == 2
+    pts = depth_to_point_map(depth, K)[mask]
+    floor = _plane_at(R, 0.0)
+    support = plane_under_object(floor, pts, depth, K, mask)
+    np.testing.assert_allclose(support.normal_cam, floor.normal_cam)
+    assert support.offset_m == pytest.approx(_EYE[2] - 0.72, abs=1e-6)  # exact depth: the top's own height
+    table = _plane_at(R, 0.72)
+    assert plane_under_object(table, pts, depth, K, mask) is table  # standing on it: kept
+    # A board in front hides the box's bottom: its lowest points are well above the table, yet the table
+    # round it shows more than the board's top does, so the table stays its support.
+    depth, label, _ = _raycast([_FLOOR, _TABLE_TOP, _OBJECT, _BOARD])
+    mask = label == 2
+    pts = depth_to_point_map(depth, K)[mask]
+    assert np.percentile(pts @ table.normal_cam + table.offset_m, 2) > 0.05  # the construction
+    assert plane_under_object(table, pts, depth, K, mask) is table
+
+
+def test_an_estimate_over_a_floor_rests_on_the_table_top():
+    # ProMPose's own plane for the frame may be the floor or the table; either way the fitted box stands on
+    # the table top and keeps its 12 cm height (it grew to the floor, 84 cm, when the floor was its support).
+    depth, label, _ = _raycast([_FLOOR, _TABLE_TOP, _OBJECT])
+    frame = RGBDFrame(np.full((K.height, K.width, 3), 128, np.uint8), depth.astype(np.float32), K, 0.0)
+    prior = PriorLibrary().family_prior("box")
+    est = ProMPose(Grounder(), PriorLibrary()).estimate(frame, "box", prior=prior, mask=label == 2)
+    assert est.support_plane is not None
+    # 5 mm: the RANSAC plane's normal is fitted on exact depth, off by a fraction of a degree
+    assert est.support_plane.offset_m == pytest.approx(_EYE[2] - 0.72, abs=0.005)
+    # 10 %: SIZE_RTOL of the fit tests; exact depth, the prior's own family
+    assert est.pose.size[1] == pytest.approx(0.12, rel=0.10)

@@ -9,6 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from prompose_grasp.geometry.camera import CameraIntrinsics
+from prompose_grasp.geometry.pointcloud import back_project
 from prompose_grasp.perception.grounding.types import GroundingConfig, SupportPlane
 
 __all__ = [
@@ -18,6 +20,7 @@ __all__ = [
     "fit_support_plane",
     "plane_candidates",
     "plane_frame",
+    "plane_under_object",
 ]
 
 log = logging.getLogger(__name__)
@@ -216,6 +219,72 @@ def fit_support_plane(points_cam: np.ndarray, config: GroundingConfig) -> Suppor
     if plane is None:
         log.debug("no support plane among %d points", len(points_cam))
     return plane
+
+
+#: An object whose lowest points (2nd percentile of their height) lie more than this [m] above the support
+#: plane does not stand on it: the bottom edge of a resting object is seen within 1-2 cm of its support (depth
+#: noise, a rounded rim), and 5 cm leaves room for a bottom hidden behind something low in front.
+_REST_GAP_M = 0.05
+
+#: Share of the object's surroundings that must lie on a plane for it to be there (`plane_under_object`):
+#: a table top round an object fills far more of them; a few percent is a neighbour's face.
+_SURROUNDING_SHARE = 0.10
+
+#: The surroundings sampled by `plane_under_object` are at most this many pixels (an even stride).
+_SURROUNDING_PIXELS = 6000
+
+
+def plane_under_object(
+    plane: SupportPlane,
+    points_cam: np.ndarray,
+    depth_m: np.ndarray,
+    intrinsics: CameraIntrinsics,
+    mask: np.ndarray,
+) -> SupportPlane:
+    """The plane the object of `mask` stands on: `plane` (the frame's support), or a surface parallel to it
+    right under the object.
+
+    The frame's dominant plane is not always the object's support: a small table seen over a larger floor
+    gives the floor, and a box fitted down to it grows by the table's height. When the object's lowest
+    points lie more than `_REST_GAP_M` above `plane`, its surroundings (the mask's box grown by its own
+    width and height each side, outside the mask) are looked at: the densest 2 cm slab of heights between
+    `plane` and the object's lowest points is the support (a table top, with `plane`'s normal) when it holds
+    at least `_SURROUNDING_SHARE` of the surroundings and more of them than `plane` itself does. Otherwise
+    `plane` is kept: the object's bottom is only hidden (behind something low in front of it), or nothing
+    under it is seen.
+
+    Args:
+        plane: the frame's support plane (`fit_support_plane`).
+        points_cam: (N, 3) the object's points [m], camera frame (the mask back-projected), N > 0.
+        depth_m, intrinsics: the frame's depth image and camera.
+        mask: (H, W) bool, the object's pixels.
+    """
+    n, d = plane.normal_cam, plane.offset_m
+    low = float(np.percentile(points_cam @ n + d, 2.0))
+    if low <= _REST_GAP_M:
+        return plane
+    ys, xs = np.nonzero(mask)
+    h_img, w_img = mask.shape
+    bw, bh = xs.max() - xs.min() + 1, ys.max() - ys.min() + 1
+    around = np.zeros_like(mask)
+    around[max(0, ys.min() - bh) : min(h_img, ys.max() + bh + 1),
+           max(0, xs.min() - bw) : min(w_img, xs.max() + bw + 1)] = True  # fmt: skip
+    around &= ~mask
+    stride = max(1, int(np.sqrt(np.count_nonzero(around) / _SURROUNDING_PIXELS)))
+    sparse = np.zeros_like(mask)
+    sparse[::stride, ::stride] = True
+    h = back_project(depth_m, intrinsics, mask=around & sparse) @ n + d
+    between = h[(h > _SIDE_BAND_M) & (h < low + _SIDE_BAND_M)]
+    if len(between) < _SURROUNDING_SHARE * len(h):
+        return plane
+    counts, edges = np.histogram(between, bins=np.arange(_SIDE_BAND_M, low + 2.0 * _SIDE_BAND_M, 0.01))
+    peak = 0.5 * (edges[np.argmax(counts)] + edges[np.argmax(counts) + 1])
+    on = np.abs(h - peak) < 0.01
+    if np.mean(on) < _SURROUNDING_SHARE or np.count_nonzero(on) <= np.count_nonzero(np.abs(h) < _SIDE_BAND_M):
+        return plane  # no surface under the object, or the frame's plane shows more round it
+    height = float(np.median(h[on]))
+    log.debug("object %.2f m above the frame's plane: its support is %.3f m above it", low, height)
+    return SupportPlane(normal_cam=n, offset_m=d - height, inlier_fraction=float(np.mean(on)))
 
 
 class PlaneFrame:
