@@ -4,11 +4,16 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import sys
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import prompose_grasp
 from prompose_grasp.errors import PromposeError
+
+if TYPE_CHECKING:  # the estimator loads torch: imported where a command needs it, so --help stays fast
+    from prompose_grasp.perception.estimator import Estimate
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -275,7 +280,7 @@ def _run_estimate(args: argparse.Namespace) -> int:
             frame.rgb,
             frame.intrinsics,
             [e.pose for e in best],
-            labels=[f"{args.prompt} ({e.prior.name})" for e in best],
+            labels=[_overlay_label(args.prompt, e) for e in best],
             masks=[e.mask for e in best],
         )
         cv2.imwrite(args.overlay, image[..., ::-1])
@@ -334,6 +339,13 @@ def _run_eval_nocs(args: argparse.Namespace) -> int:
             json.dump(table, f, indent=2)
         print(f"wrote {args.json_out}")
     return 0
+
+
+def _overlay_label(prompt: str, est: Estimate) -> str:
+    """`prompt (prior, NN% seen)`: the share of the box's facing surface the mask shows (`Estimate.coverage`)
+    tells a person looking at the overlay how much of the box rests on the prior alone."""
+    seen = f", {est.coverage:.0%} seen" if math.isfinite(est.coverage) else ""
+    return f"{prompt} ({est.prior.name}{seen})"
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -15,7 +16,7 @@ import trimesh
 from grounding_scene import render_scene
 
 from prompose_grasp import InvalidInputError, ObjectNotFoundError, ProMPose
-from prompose_grasp.cli import main
+from prompose_grasp.cli import _overlay_label, main
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.perception.grounding import Grounder
@@ -72,6 +73,9 @@ def test_user_mask_skips_grounding_and_keeps_the_object(estimator, frame, scene)
     assert est.score == 1.0 and np.array_equal(est.mask, mask)
     assert est.pose.iou(scene.gt_poses["box"]) >= MIN_IOU
     assert est.coverage > 0.9  # the box stands in full view: its mask shows all its facing surface
+    # the overlay's label says it; a tracked update (no coverage) says nothing of it
+    assert _overlay_label("box", est) == f"box ({est.prior.name}, {round(100 * est.coverage)}% seen)"
+    assert _overlay_label("box", replace(est, coverage=math.nan)) == f"box ({est.prior.name})"
     with pytest.raises(InvalidInputError, match="mask must be"):
         estimator.estimate(frame, "box", mask=mask[:10])
     with pytest.raises(ObjectNotFoundError, match="valid depth points"):
