@@ -621,6 +621,23 @@ def test_a_table_top_under_the_object_is_its_support_not_the_floor():
     assert plane_under_object(table, pts, depth, K, mask) is table
 
 
+def test_a_carton_level_with_its_layer_keeps_the_frame_plane():
+    # A 3 x 3 layer of 30 cm cartons on the floor seen from above: the middle one shows only its top, level
+    # with its neighbours' tops. That level is not its support (it does not rise from it): the floor stays.
+    size, gap = 0.2, 0.005
+    cartons = [
+        (np.array([x - size / 2, y - size / 2, 0.0]), np.array([x + size / 2, y + size / 2, 0.3]))
+        for x in (-(size + gap), 0.0, size + gap)
+        for y in (-(size + gap), 0.0, size + gap)
+    ]
+    depth, label, R = _raycast([_FLOOR, *cartons])
+    mask = label == 5  # the middle carton
+    pts = depth_to_point_map(depth, K)[mask]
+    floor = _plane_at(R, 0.0)
+    assert np.percentile(pts @ floor.normal_cam + floor.offset_m, 2) > 0.25  # the construction: its top
+    assert plane_under_object(floor, pts, depth, K, mask) is floor
+
+
 def test_an_estimate_over_a_floor_rests_on_the_table_top():
     # ProMPose's own plane for the frame may be the floor or the table; either way the fitted box stands on
     # the table top and keeps its 12 cm height (it grew to the floor, 84 cm, when the floor was its support).

@@ -249,9 +249,10 @@ def plane_under_object(
     points lie more than `_REST_GAP_M` above `plane`, its surroundings (the mask's box grown by its own
     width and height each side, outside the mask) are looked at: the densest 2 cm slab of heights between
     `plane` and the object's lowest points is the support (a table top, with `plane`'s normal) when it holds
-    at least `_SURROUNDING_SHARE` of the surroundings and more of them than `plane` itself does. Otherwise
-    `plane` is kept: the object's bottom is only hidden (behind something low in front of it), or nothing
-    under it is seen.
+    at least `_SURROUNDING_SHARE` of the surroundings, more of them than `plane` itself does, and the
+    object rises more than `_REST_GAP_M` above it. Otherwise `plane` is kept: the object's bottom is only
+    hidden (behind something low in front of it), nothing under it is seen, or the object is level with the
+    surface round it (a carton's top among its neighbours' in a layer seen from above).
 
     Args:
         plane: the frame's support plane (`fit_support_plane`).
@@ -260,7 +261,7 @@ def plane_under_object(
         mask: (H, W) bool, the object's pixels.
     """
     n, d = plane.normal_cam, plane.offset_m
-    low = float(np.percentile(points_cam @ n + d, 2.0))
+    low, top = np.percentile(points_cam @ n + d, [2.0, 98.0])
     if low <= _REST_GAP_M:
         return plane
     ys, xs = np.nonzero(mask)
@@ -283,6 +284,10 @@ def plane_under_object(
     if np.mean(on) < _SURROUNDING_SHARE or np.count_nonzero(on) <= np.count_nonzero(np.abs(h) < _SIDE_BAND_M):
         return plane  # no surface under the object, or the frame's plane shows more round it
     height = float(np.median(h[on]))
+    if top - height < _REST_GAP_M:
+        # the object does not rise from that surface, it is level with it: a carton's top seen from above
+        # among its neighbours' tops in the same layer, whose support is not seen
+        return plane
     log.debug("object %.2f m above the frame's plane: its support is %.3f m above it", low, height)
     return SupportPlane(normal_cam=n, offset_m=d - height, inlier_fraction=float(np.mean(on)))
 
