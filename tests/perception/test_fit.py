@@ -425,11 +425,9 @@ def test_hidden_handle_is_put_behind_the_body(library: PriorLibrary) -> None:
     for k in range(2):
         R, t, up = _mug_pose(rng, handle_from_away_deg=0.0, elevation_deg=35.0 + 10.0 * k)
         gt = Pose9D(R, t, prior.typical_size_m * rng.uniform(0.9, 1.1))
-        samples, _ = _dense_surface(prior, 60000, k)
-        depth, label = _render([(gt.points_to_camera(samples), 1)], _plane_below(gt, up))
-        pts = _observed(depth, label == 1, rng)
-        scene = SceneView(depth, _CAM, label == 1)
-        fit = fit_pose(pts, prior, support_plane_cam=_plane_below(gt, up), scene=scene)
+        scene, plane = _alone(prior, gt, up, k)
+        pts = _observed(scene.depth_m, scene.mask, rng)
+        fit = fit_pose(pts, prior, support_plane_cam=plane, scene=scene)
         # 6 mm: the band's middle is found to half a 20 deg scan step, which swings the box centre (1.7 cm
         # in front of the handle side of the body's axis) by <= 3 mm; the body's own fit adds ~2 mm
         assert np.linalg.norm(fit.pose.t - gt.t) < 0.006
@@ -441,6 +439,15 @@ def _plane_below(gt: Pose9D, up: np.ndarray) -> np.ndarray:
     return np.array([*up, -float(up @ bottom)])
 
 
+def _alone(prior, gt: Pose9D, up: np.ndarray, seed: int) -> tuple[SceneView, np.ndarray]:
+    """The prior posed by `gt`, alone on the plane below it (surface samples drawn with `seed`): the scene
+    (depth image, its mask) and that plane."""
+    samples, _ = _dense_surface(prior, 60000, seed)
+    plane = _plane_below(gt, up)
+    depth, label = _render([(gt.points_to_camera(samples), 1)], plane)
+    return SceneView(depth, _CAM, label == 1), plane
+
+
 def test_seen_handle_keeps_its_yaw(library: PriorLibrary) -> None:
     # The handle 70 deg off "behind": seen from the side, its points pin the yaw; the hidden-handle rule
     # must not move it.
@@ -448,13 +455,9 @@ def test_seen_handle_keeps_its_yaw(library: PriorLibrary) -> None:
     rng = np.random.default_rng(4)
     R, t, up = _mug_pose(rng, handle_from_away_deg=70.0)
     gt = Pose9D(R, t, prior.typical_size_m)
-    samples, _ = _dense_surface(prior, 60000, 1)
-    depth, label = _render([(gt.points_to_camera(samples), 1)], _plane_below(gt, up))
-    pts = _observed(depth, label == 1, rng)
-    fit = fit_pose(
-        pts, prior, support_plane_cam=_plane_below(gt, up), scene=SceneView(depth, _CAM, label == 1)
-    )
-    _check(fit, gt, "none")
+    scene, plane = _alone(prior, gt, up, 1)
+    pts = _observed(scene.depth_m, scene.mask, rng)
+    _check(fit_pose(pts, prior, support_plane_cam=plane, scene=scene), gt, "none")
 
 
 @pytest.mark.parametrize("away_deg", [36.0, 37.0, -37.0])
@@ -463,18 +466,16 @@ def test_handle_seen_edge_on_sets_the_yaw(library: PriorLibrary, away_deg: float
     # (fewer than the 20 of a seen handle). Taken for hidden, the handle went to the middle of the hiding
     # turns, 10-29 deg off; its few points match the prior's handle at one turn, and that turn is taken.
     prior = library.family_prior("mug")
-    samples, _ = _dense_surface(prior, 60000, 1)
     rng = np.random.default_rng(6)
     R, t, up = _mug_pose(rng, handle_from_away_deg=away_deg, elevation_deg=35.0)
     gt = Pose9D(R, t, prior.typical_size_m)
-    plane = _plane_below(gt, up)
-    depth, label = _render([(gt.points_to_camera(samples), 1)], plane)
-    pts = _observed(depth, label == 1, rng)
+    scene, plane = _alone(prior, gt, up, 1)
+    pts = _observed(scene.depth_m, scene.mask, rng)
     axis = round_body_axis(prior)
     assert axis is not None
     sliver = len(protrusion_points(gt, axis, pts, FitConfig().handle_margin_m))
     assert FitConfig().handle_sliver_points <= sliver < FitConfig().handle_min_points  # the construction
-    fit = fit_pose(pts, prior, support_plane_cam=plane, scene=SceneView(depth, _CAM, label == 1))
+    fit = fit_pose(pts, prior, support_plane_cam=plane, scene=scene)
     # 5 deg, the NOCS bar: the handle's points fix the turn to ~1 deg (0.4-1.6 measured)
     assert _rotation_error_deg(fit.pose, gt, "none") < 5.0
 
@@ -517,13 +518,11 @@ def test_mask_coverage_is_the_seen_share_of_the_facing_surface(library: PriorLib
     rng = np.random.default_rng(5)
     R, t, up = _mug_pose(rng, handle_from_away_deg=0.0)
     gt = Pose9D(R, t, prior.typical_size_m)
-    samples, _ = _dense_surface(prior, 60000, 4)
-    plane = _plane_below(gt, up)
-    depth, label = _render([(gt.points_to_camera(samples), 1)], plane)
-    mask = label == 1
+    scene, plane = _alone(prior, gt, up, 4)
+    depth, mask = scene.depth_m, scene.mask
     # 0.97: a prior point on the silhouette may round to the pixel just outside it (a ring one pixel wide,
     # under 3 % of a can ~60 pixels across)
-    assert mask_coverage(gt, prior, SceneView(depth, _CAM, mask)) > 0.97
+    assert mask_coverage(gt, prior, scene) > 0.97
     u_axis = int(_CAM.fx * t[0] / t[2] + _CAM.cx)
     half = mask.copy()
     half[:, :u_axis] = False
@@ -532,8 +531,8 @@ def test_mask_coverage_is_the_seen_share_of_the_facing_surface(library: PriorLib
     assert mask_coverage(gt, prior, SceneView(depth, _CAM, half)) == pytest.approx(0.5, abs=0.1)
     assert mask_coverage(gt, prior, SceneView(depth, _CAM, np.zeros_like(mask))) == 0.0
     pts = _observed(depth, mask, rng)
-    fit = fit_pose(pts, prior, support_plane_cam=plane, scene=SceneView(depth, _CAM, mask))
-    assert fit.coverage == mask_coverage(fit.pose, fit.prior, SceneView(depth, _CAM, mask))
+    fit = fit_pose(pts, prior, support_plane_cam=plane, scene=scene)
+    assert fit.coverage == mask_coverage(fit.pose, fit.prior, scene)
     assert fit.coverage > 0.9  # the fit within the bounds above covers the mask as the truth does
     assert math.isnan(fit_pose(pts, prior, support_plane_cam=plane).coverage)  # no scene, no coverage
 
