@@ -226,6 +226,9 @@ def test_noun_prior_comes_from_the_prior_library(grounder):
     t = grounder.priors.family_prior("mug").typical_size_m  # (x, y up, z)
     np.testing.assert_allclose(mug.typical_extent_m, [max(t[0], t[2]), min(t[0], t[2]), t[1]])
     assert grounder.noun_prior("zzzz qqq") is None  # no family is similar enough: no metric size term
+    # of the default library's families only the mug's mesh carries a handle
+    assert mug.has_handle
+    assert not any(grounder.noun_prior(n).has_handle for n in ("cup", "can", "bowl", "bottle", "camera"))
 
 
 @pytest.mark.parametrize(
@@ -243,6 +246,21 @@ def test_category_only_prompts_find_the_object(scene, grounder, prompt, names):
     found, overlap = best_object(scene, result)
     assert found in names
     assert overlap >= MIN_NAMED_IOU
+
+
+def test_the_mugs_handle_is_seen_and_the_cups_have_none(scene, grounder):
+    """The red mug stands with its handle in view: its mask keeps the handle (thin parts the sensor breaks
+    into fragments join their body) and it shows one; the cups do not."""
+    result = grounder.ground(scene.rgb, scene.depth_m, scene.intrinsics, "the cup")
+    seen = {}
+    for c in result.candidates:
+        name, overlap = max(
+            ((n, iou(c.mask, scene.gt_mask == i)) for n, i in scene.ids.items()), key=lambda x: x[1]
+        )
+        if overlap >= MIN_NAMED_IOU:
+            seen[name] = c.attributes.handle_seen
+    assert seen.get("mug") is True
+    assert seen.get("cup_left") is False and seen.get("cup_right") is False
 
 
 @pytest.fixture(scope="module")

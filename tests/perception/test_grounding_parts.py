@@ -18,6 +18,7 @@ from prompose_grasp.perception.grounding.describe import (
     PALETTE,
     colour_names,
     dominant_colour,
+    handle_seen,
     shape_family,
     size_class,
     top_height_histogram,
@@ -251,6 +252,52 @@ def test_a_box_corner_and_a_can_through_depth_noise(sigma):
         assert shape_family(can, _measured_extent(can)) == "cylinder", i
 
 
+def _handle(r: float, h: float, centre: np.ndarray, azimuth: float, rng) -> np.ndarray:
+    """A mug handle's outer loop: 20 points (as dense as `_visible_cylinder`'s side) on a half circle in the
+    vertical plane through the body's axis at `azimuth`, from 0.8 h out 2.5 cm and back to 0.25 h, 1 cm
+    wide."""
+    t = rng.uniform(0.0, math.pi, 20)
+    reach, mid, half = 0.025, 0.525 * h, 0.275 * h
+    radial = r + reach * np.sin(t)
+    u = np.array([math.cos(azimuth), math.sin(azimuth)])
+    across = np.array([-u[1], u[0]]) * rng.uniform(-0.005, 0.005, 20)[:, None]
+    return np.column_stack([centre + radial[:, None] * u + across, mid + half * np.cos(t)])
+
+
+@pytest.mark.parametrize("sigma", [0.0, 0.007])
+def test_a_handle_is_seen_beside_a_round_body_only(sigma):
+    """A mug (r 4 cm, 9.5 cm tall) ~1 m from the camera with its handle beside the body, against the same body
+    without it (a cup, a can), with it behind the body, and against a bowl whose wall flares out.
+
+    sigma 7 mm: the RealSense-like axial noise at 1.1-1.2 m, as in the box/can test. The handle stands
+    2.5 cm out, beyond the 12 mm (0.3 r) threshold at any noise, in one direction; the bowl's flare stands
+    out all along the half circle the camera sees (the concentration test), so it is no handle.
+    """
+    for i in range(8):
+        rng = np.random.default_rng(i)
+        centre = np.array([rng.uniform(-0.2, 0.3), rng.uniform(0.9, 1.2)])
+        view = math.atan2(-centre[1], -centre[0])  # from the body towards the camera, in the plane
+        body = _visible_cylinder(0.04, 0.095, centre, rng)
+        side = view + rng.choice([-1.0, 1.0]) * rng.uniform(math.radians(60), math.radians(100))
+        mug = _along_rays(np.concatenate([body, _handle(0.04, 0.095, centre, side, rng)]), sigma, rng)
+        cup = _along_rays(body, sigma, rng)
+        ext_mug, ext_cup = _measured_extent(mug), _measured_extent(cup)
+        assert handle_seen(mug, ext_mug, "cylinder"), i
+        assert not handle_seen(cup, ext_cup, "cylinder"), i
+        # the same points read as a box (or anything not round) are not judged
+        assert not handle_seen(mug, ext_mug, "box"), i
+        # a bowl: radius 5 cm at the foot to 8 cm at the rim, the camera's half of its outer wall
+        ang = view + rng.uniform(-math.pi / 2, math.pi / 2, 300)
+        z = rng.uniform(0.0, 0.07, 300)
+        rad = 0.05 + 0.03 * z / 0.07
+        bowl = _along_rays(
+            np.column_stack([centre + rad[:, None] * np.column_stack([np.cos(ang), np.sin(ang)]), z]),
+            sigma,
+            rng,
+        )
+        assert not handle_seen(bowl, _measured_extent(bowl), "cylinder"), i
+
+
 @pytest.mark.parametrize(
     ("prompt", "text", "noun", "colours", "size", "position", "relation", "ref_noun"),
     [
@@ -343,6 +390,21 @@ def test_noun_prior_ranks_by_metric_size_unless_a_size_word_is_said():
         noun_prior=prior,
     )
     assert np.argmax(small) == 2
+
+
+def test_handle_term_tells_a_mug_from_a_cup():
+    # three candidates alike in every measured way but the handle, which only the first shows
+    f = feats(handles=np.array([True, False, False]))
+    mug = NounPrior("mug", 0.9, np.full(3, 0.1), has_handle=True)
+    cup = NounPrior("cup", 0.9, np.full(3, 0.1), has_handle=False)
+    s_mug = score_candidates(parse_prompt("the mug"), f, None, noun_prior=mug)
+    s_cup = score_candidates(parse_prompt("the cup"), f, None, noun_prior=cup)
+    assert np.argmax(s_mug) == 0 and s_mug[1] == s_mug[2]
+    assert np.argmin(s_cup) == 0 and s_cup[1] == s_cup[2]
+    # a handle not seen is not judged: the cups score the same for "the mug" as for "the cup"
+    assert s_mug[1] == pytest.approx(s_cup[1])
+    # and nothing changes when handles were not measured
+    assert np.ptp(score_candidates(parse_prompt("the cup"), feats(), None, noun_prior=cup)) == 0.0
 
 
 def test_top_height_histogram_of_constructed_shapes():

@@ -19,6 +19,7 @@ from prompose_grasp.perception.grounding.describe import (
     SIZE_CLASSES,
     describe_text,
     dominant_colour,
+    handle_seen,
     shape_family,
     size_class,
     top_height_histogram,
@@ -194,7 +195,14 @@ class Grounder:
                 extent = np.array([max(t[0], t[2]), min(t[0], t[2]), t[1]])
                 P = np.asarray(prior.points, dtype=np.float64) * t  # unit box -> metres, centred
                 coords = np.column_stack([P[:, 0], P[:, 2], P[:, 1] + 0.5 * t[1]])
-                out = NounPrior(family, float(score), extent, top_height_histogram(coords, t[1], extent[0]))
+                out = NounPrior(
+                    family,
+                    float(score),
+                    extent,
+                    top_height_histogram(coords, t[1], extent[0]),
+                    # the mesh seen all around, judged as a round thing: does the family carry a handle?
+                    has_handle=handle_seen(coords, extent, "cylinder"),
+                )
         with self._priors_lock:
             self._noun_priors[noun] = out
         return out
@@ -218,7 +226,7 @@ class Grounder:
         return dict(zip(FAMILY_TEXTS, (z / z.sum()).tolist()))
 
     def _attributes(
-        self, rgb: np.ndarray, seg: Segment, frame: PlaneFrame | None
+        self, rgb: np.ndarray, points_map: np.ndarray, seg: Segment, frame: PlaneFrame | None
     ) -> tuple[CandidateAttributes, dict[str, float], np.ndarray]:
         pts = seg.points_cam
         if frame is not None:
@@ -241,6 +249,13 @@ class Grounder:
         size = size_class(extent)
         family = shape_family(coords, extent)
         tops = top_height_histogram(coords, float(extent[2]), float(extent[0]))
+        handle = False
+        if frame is not None:  # without a plane there is no footprint to find a handle around
+            # on the whole mask's grid points: a handle often joins its body's mask only when the mask is
+            # grown at full resolution, after clustering (`segment_objects`), so not in `seg.points_cam`
+            s = self.config.segment_stride_px
+            grid = points_map[::s, ::s][seg.mask[::s, ::s]]
+            handle = handle_seen(frame.coords(grid[np.isfinite(grid[:, 2])]), extent, family)
         attrs = CandidateAttributes(
             colour_name=colour,
             colour_rgb=colour_rgb,
@@ -251,6 +266,7 @@ class Grounder:
             num_pixels=len(ys),
             description=describe_text(size, colour, family),
             top_height_histogram=tops,
+            handle_seen=handle,
         )
         return attrs, shares, xy
 
@@ -316,7 +332,7 @@ class Grounder:
             plane_coords=frame.coords if frame is not None else None,
         )
         t2 = time.perf_counter()
-        described = [self._attributes(rgb, s, frame) for s in segs]
+        described = [self._attributes(rgb, P, s, frame) for s in segs]
         t3 = time.perf_counter()
         candidates: tuple[Candidate, ...] = ()
         if segs:
@@ -343,6 +359,7 @@ class Grounder:
             plane_xy_m=np.stack([d[2] for d in described]),
             distance_m=np.array([float(np.linalg.norm(d[0].centroid_cam)) for d in described]),
             top_heights=np.stack([d[0].top_height_histogram for d in described]),
+            handles=np.array([d[0].handle_seen for d in described], dtype=bool),
         )
 
     def _prior_for(self, parsed: ParsedPrompt, has_plane: bool) -> NounPrior | None:

@@ -161,6 +161,7 @@ class CandidateAttributes:
         top_height_histogram: (HEIGHT_BINS,) float64 shares summing to 1 (empty when not measured): the
             candidate seen from above, the highest point of each footprint cell as a fraction of the height,
             histogrammed (`describe.top_height_histogram`); a box is all "top", a laptop mostly "low".
+        handle_seen: a round candidate shows a handle (`describe.handle_seen`): a mug, not a cup.
     """
 
     colour_name: str
@@ -172,6 +173,7 @@ class CandidateAttributes:
     num_pixels: int
     description: str
     top_height_histogram: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    handle_seen: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "colour_rgb", _frozen(np.asarray(self.colour_rgb, dtype=np.uint8)))
