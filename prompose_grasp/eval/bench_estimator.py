@@ -19,6 +19,9 @@ Per frame of the split (a dataset written by `python -m sim.dataset`; test categ
   test-category object of the scene's first frame: the tracker alone (later frames use no ground truth;
   a lost track is grounded again), to compare with `ours_oracle_mask` frame by frame.
 
+The tracked rows are ranked for the AP as their track's first frame (the frame that restarted it, after a
+loss): its grounding score times coverage, kept through the tracked updates, which have neither.
+
 `--methods` (`methods=`) runs only the named rows (default: all); the rows not run are absent from the report
 (e.g. the tracked rows alone on a long video-rate split, where the single-frame rows would cost most).
 
@@ -47,7 +50,7 @@ from prompose_grasp.eval.synthetic import nocs_image_result, nocs_tables
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.pointcloud import back_project
 from prompose_grasp.perception.dataset import SyntheticFrame, read_split, scene_frames
-from prompose_grasp.perception.estimator import ProMPose
+from prompose_grasp.perception.estimator import Estimate, ProMPose
 from prompose_grasp.perception.priors import ShapePrior
 
 __all__ = ["METHODS", "parse_methods", "run_estimator_benchmark"]
@@ -180,6 +183,14 @@ def _confidence(grounding_score: float, coverage: float) -> float:
     return grounding_score * (coverage if np.isfinite(coverage) else 1.0)
 
 
+def _track_confidence(est: Estimate, previous: float) -> float:
+    """A tracked prediction's detection score: `_confidence` of the frame that (re)started the track, kept
+    through the tracked updates after it (they have no grounding score nor coverage of their own)."""
+    if np.isfinite(est.score) and np.isfinite(est.coverage):
+        return _confidence(est.score, est.coverage)
+    return previous
+
+
 def _frame_predictions(
     estimator: ProMPose,
     sf: SyntheticFrame,
@@ -233,6 +244,7 @@ def _track_scene(
     per_frame: list[list[tuple[int, Pose9D, float]]] = [[] for _ in frames]
     for prompt, category in prompts:
         stream = estimator.track((sf.frame for sf in frames), prompt)
+        confidence = 1.0
         for k in range(len(frames)):
             t0 = time.perf_counter()
             try:
@@ -243,7 +255,8 @@ def _track_scene(
                 log.info("tracking %r stopped at frame %d: %s", prompt, k, exc)
                 break
             times["track_first_frame" if k == 0 else "track_update"].append(time.perf_counter() - t0)
-            per_frame[k].append((synsets.index(category), est.pose, 1.0))
+            confidence = _track_confidence(est, confidence)
+            per_frame[k].append((synsets.index(category), est.pose, confidence))
     return per_frame
 
 
@@ -261,6 +274,7 @@ def _track_scene_oracle_mask(
         if len(back_project(first.frame.depth_m, first.frame.intrinsics, mask=oracle_mask)) < _MIN_POINTS:
             continue
         stream = estimator.track((sf.frame for sf in frames), obj.prompt, mask=oracle_mask)
+        confidence = 1.0
         for k in range(len(frames)):
             t0 = time.perf_counter()
             try:
@@ -269,7 +283,8 @@ def _track_scene_oracle_mask(
                 log.info("tracking %r stopped at frame %d: %s", obj.prompt, k, exc)
                 break
             times["track_oracle_update" if k else "track_oracle_first_frame"].append(time.perf_counter() - t0)
-            per_frame[k].append((synsets.index(obj.category), est.pose, 1.0))
+            confidence = _track_confidence(est, confidence)
+            per_frame[k].append((synsets.index(obj.category), est.pose, confidence))
     return per_frame
 
 

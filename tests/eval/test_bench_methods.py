@@ -2,11 +2,20 @@
 
 from __future__ import annotations
 
+from math import nan
+from types import SimpleNamespace
+
 import pytest
 
 from prompose_grasp.cli import main
 from prompose_grasp.errors import InvalidInputError, UnknownNameError
-from prompose_grasp.eval.bench_estimator import METHODS, format_report, parse_methods, run_estimator_benchmark
+from prompose_grasp.eval.bench_estimator import (
+    METHODS,
+    _track_confidence,
+    format_report,
+    parse_methods,
+    run_estimator_benchmark,
+)
 from prompose_grasp.eval.nocs import NOCS_METRIC_KEYS
 
 
@@ -68,3 +77,14 @@ def test_report_text_has_only_the_rows_run():
     assert "ours_oracle_mask  [iou_mode" not in text
     assert "tracking from the oracle mask: 40.0 frames/s" in text
     assert "\ntracking:" not in text
+
+
+def test_a_tracked_prediction_is_ranked_as_the_frame_that_started_its_track():
+    # first frame grounded at 0.9 with 80 % of the fitted shape seen; two tracked updates (no grounding
+    # score, no coverage); a loss, grounded again at 0.5 in full view
+    frames = [(0.9, 0.8), (nan, nan), (nan, nan), (0.5, 1.0)]
+    got, confidence = [], 1.0
+    for score, coverage in frames:
+        confidence = _track_confidence(SimpleNamespace(score=score, coverage=coverage), confidence)
+        got.append(confidence)
+    assert got == pytest.approx([0.72, 0.72, 0.72, 0.5])

@@ -271,10 +271,8 @@ def handle_seen(coords: np.ndarray, extent_m: np.ndarray, family: str) -> bool:
     centre, rc, _ = _fit_circle(side, rounds=4)
     if rc <= 0:
         return False
-    out = (
-        side[np.linalg.norm(side - centre, axis=1) - rc > max(_HANDLE_OFFSET_M, _HANDLE_OFFSET_RADII * rc)]
-        - centre
-    )
+    outside = np.linalg.norm(side - centre, axis=1) - rc  # [m] beyond the body's circle
+    out = side[outside > max(_HANDLE_OFFSET_M, _HANDLE_OFFSET_RADII * rc)] - centre
     if len(out) < max(3, HANDLE_MIN_SHARE * len(side)):
         return False
     azimuth = np.arctan2(out[:, 1], out[:, 0])

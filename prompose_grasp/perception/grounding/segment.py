@@ -100,7 +100,8 @@ class Segment:
 
     Attributes:
         mask: (H, W) bool full-resolution mask.
-        points_cam: (N, 3) float64 camera-frame points of the mask's grid pixels with depth [m].
+        points_cam: (N, 3) float64 camera-frame points [m] of the grid cells the segment was clustered
+            from, with depth (not of the fragments it gathered, `_attach_fragments`, which are in `mask`).
         box_xyxy: (4,) int64 (x0, y0, x1, y1), inclusive.
     """
 
@@ -572,7 +573,12 @@ def segment_objects(
     if plane is not None:
         with np.errstate(invalid="ignore"):
             heights = np.nan_to_num(Pg @ plane.normal_cam + plane.offset_m, nan=-1.0)
+    merged = _merge_small(labels, geo, min_cells)
     labels = _merge_small(labels, geo, min_cells, Pg, heights)
+    # cells of attached fragments: painted into their body's mask (the fit sees the handle), but left out of
+    # the points that describe the body (footprint and shape family: a box's own stray cells at its far top
+    # edge turned it "cylindrical" in a closed-loop episode, tabletop seed 739)
+    fragment = (labels >= 0) & (merged < 0)
     if plane is not None:
         wall = _wall_segments(labels, Pg, plane, config, span_m=_RESPLIT_SPAN_M)
         resplit = np.zeros(labels.shape, dtype=bool)
@@ -617,7 +623,8 @@ def segment_objects(
         vv, uu = np.nonzero(labels == k)
         if plane is None and len(vv) > _MAX_BACKGROUND_SHARE * total_valid:
             continue
-        pts = Pg[vv, uu]
+        body = ~fragment[vv, uu]
+        pts = Pg[vv[body], uu[body]] if np.any(body) else Pg[vv, uu]
         pts = pts[np.isfinite(pts[:, 2])]
         if support_hull is not None and plane_coords is not None and len(pts):
             centre = plane_coords(pts)[:, :2].mean(axis=0)
