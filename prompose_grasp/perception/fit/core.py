@@ -143,9 +143,9 @@ class FitConfig:
             masks: no containment 93.1 / 68.6, uncapped 82.7 / 46.4, cap 10 mm 92.3 / 58.2, cap 4 mm 93.1 /
             77.5; with oracle masks 93.8 / 65.0, 98.7 / 86.5, 98.7 / 86.5, 97.3 / 87.7 (docs/fit.md).
         scene_occlusion: with a `SceneView` (the depth image the points came from), a prior point the camera
-            could not have seen does not pull on the observation: it projects outside the image, onto a
-            pixel without a depth reading, or behind a nearer surface that is not this object (an occluder
-            in front, by more than `occlusion_margin_m`). Without it a mug behind a bottle or cut by the
+            could not have seen does not pull on the observation: it projects outside the image, or off the
+            object's mask onto a pixel without a depth reading or behind a nearer surface (an occluder in
+            front, by more than `occlusion_margin_m`). Without it a mug behind a bottle or cut by the
             image border shrank to its visible fragment (docs/fit.md).
         occlusion_stages: the scene view is used in this many of the last stages of a cold start (and on
             warm starts); the coarse stages rank the hypotheses without it. With it in all four stages the
@@ -325,8 +325,9 @@ class SceneView:
     """The depth image the observed points were back-projected from, and the object's pixels in it.
 
     With it the fit knows where the camera could have seen the object: a prior point that projects outside
-    the image, onto a pixel without a depth reading, or behind a nearer surface outside the object's mask
-    (an occluder) is not expected in the observation (`FitConfig.scene_occlusion`).
+    the image, or off the object's mask onto a pixel without a depth reading or behind a nearer surface (an
+    occluder), is not expected in the observation (`FitConfig.scene_occlusion`). A point on the mask is
+    expected even where the sensor gave no reading (docs/fit.md: leaving those out was measured, no gain).
 
     Attributes:
         depth_m: (H, W) float depth image [m] (0 or non-finite = no reading), the camera of `points_cam`.
