@@ -36,7 +36,7 @@ from prompose_grasp.perception.grounding.score import (
     metric_size_term,
     score_candidates,
 )
-from prompose_grasp.perception.grounding.segment import concave_creases
+from prompose_grasp.perception.grounding.segment import _shade_distance, concave_creases
 from prompose_grasp.perception.priors import PriorLibrary
 from prompose_grasp.robot import RGBDFrame
 
@@ -503,6 +503,22 @@ def fold_depth(slope: float, z0: float = 0.6) -> np.ndarray:
     u, _ = np.meshgrid(np.arange(K.width), np.arange(K.height))
     up = np.abs((u - K.cx) / K.fx)
     return (z0 / (1.0 + slope * up)).astype(np.float64)
+
+
+def test_shading_joins_one_hue_in_two_lights_not_two_hues():
+    edge = GroundingConfig().colour_edge
+    # dev 26 scene 19: a purple camera's lens facing the light and its body in shade (median Lab chromas);
+    # plain distance 30.2, over the edge; one hue angle (-39.5 vs -39.7 deg): the hue part alone is ~0.1
+    lens, body = np.array([69.3, -57.2]), np.array([45.9, -38.1])
+    assert np.hypot(*(lens - body)) > edge
+    assert _shade_distance(lens, body) < 1.0
+    # two hues 30 deg apart at the same chroma: the plain distance (~31)
+    red = np.array([60.0, 0.0])
+    turned = 60.0 * np.array([np.cos(np.radians(30)), np.sin(np.radians(30))])
+    assert _shade_distance(red, turned) == pytest.approx(np.hypot(*(red - turned)))
+    # greys (chroma under 20: the hue angle is noise) and a twofold chroma (a pale and a deep colour) too
+    assert _shade_distance(np.array([5.0, 5.0]), np.array([12.0, 12.0])) == pytest.approx(np.hypot(7.0, 7.0))
+    assert _shade_distance(np.array([25.0, 0.0]), np.array([50.0, 0.0])) == pytest.approx(25.0)
 
 
 def test_concave_creases_flag_valleys_and_the_foot_of_steps_not_ridges_nor_noise():

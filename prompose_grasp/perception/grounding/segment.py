@@ -362,17 +362,17 @@ def _join_surfaces(
     group_chroma = np.array(chroma, dtype=np.float64) * cells[:, None]  # sums, per root
     group_cells = cells.copy()
     trees: dict[int, cKDTree] = {}
-    ranked = sorted(pairs, key=lambda ab: (float(np.linalg.norm(chroma[ab[0]] - chroma[ab[1]])), ab))
+    ranked = sorted(pairs, key=lambda ab: (_shade_distance(chroma[ab[0]], chroma[ab[1]]), ab))
     for a, b in ranked:
         if not len(foot[a]) or not len(foot[b]):
             continue
-        if np.linalg.norm(chroma[a] - chroma[b]) >= config.colour_edge:
+        if _shade_distance(chroma[a], chroma[b]) >= config.colour_edge:
             break  # sorted: no later pair is closer
         ra, rb = root(a), root(b)
         if ra == rb:
             continue
         mean_a, mean_b = group_chroma[ra] / group_cells[ra], group_chroma[rb] / group_cells[rb]
-        if np.linalg.norm(mean_a - mean_b) >= config.colour_edge:
+        if _shade_distance(mean_a, mean_b) >= config.colour_edge:
             continue
         if a not in trees:
             trees[a] = cKDTree(foot[a])
@@ -385,6 +385,30 @@ def _join_surfaces(
     roots = np.array([root(k) for k in range(K)])
     _, new = np.unique(roots, return_inverse=True)
     return np.where(labels >= 0, new[np.maximum(labels, 0)], -1)
+
+
+#: Two saturated chromas (Lab a, b) of one hue are one surface colour in two lights when their hue angles
+#: differ by less than this [deg] ...
+_SHADE_HUE_DEG = 6.0
+#: ... both have at least this chroma (below it the hue angle is noise) ...
+_SHADE_MIN_CHROMA = 20.0
+#: ... and the larger is at most this times the smaller (a lit and a shaded face of one object).
+_SHADE_MAX_RATIO = 1.7
+
+
+def _shade_distance(c1: np.ndarray, c2: np.ndarray) -> float:
+    """Distance of two (a, b) chromas for joining surfaces: the hue part only when they are one saturated
+    hue in two lights (`_SHADE_HUE_DEG`, `_SHADE_MIN_CHROMA`, `_SHADE_MAX_RATIO`: a camera's lens facing the
+    light and its body in shade, 90 vs 60 of chroma at one hue), else the plain Euclidean distance."""
+    n1, n2 = float(np.hypot(*c1)), float(np.hypot(*c2))
+    d = float(np.hypot(*(np.asarray(c1) - np.asarray(c2))))
+    if min(n1, n2) < _SHADE_MIN_CHROMA or max(n1, n2) > _SHADE_MAX_RATIO * min(n1, n2):
+        return d
+    cos = float(np.dot(c1, c2)) / (n1 * n2)
+    angle = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    if angle >= _SHADE_HUE_DEG:
+        return d
+    return min(n1, n2) * float(np.sin(np.radians(angle)))
 
 
 def _footprints(
