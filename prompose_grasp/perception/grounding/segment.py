@@ -277,9 +277,10 @@ def _merge_small(
 def _attach_fragments(
     target: np.ndarray, compact: np.ndarray, alone: np.ndarray, P: np.ndarray, heights: np.ndarray
 ) -> None:
-    """Point each segment of `alone` (small, no geometric neighbour) in `target` to the large segment nearest
-    to it in 3D, when its median height is at least `_FRAGMENT_MIN_HEIGHT_M` and its median distance to
-    that segment is under `_FRAGMENT_JOIN_M` (in place; `compact`: each cell's segment, -1 for none)."""
+    """Point each segment of `alone` (small, no geometric neighbour) in `target` to a large segment, when at
+    least half of its cells stand `_FRAGMENT_MIN_HEIGHT_M` or more above the support within
+    `_FRAGMENT_JOIN_M` of a large segment in 3D: to the one most of those cells are nearest to (in place;
+    `compact`: each cell's segment, -1 for none)."""
     large = ~alone & (target == np.arange(len(target)))
     cells = np.nonzero(compact >= 0)[0]
     seg = compact[cells]
