@@ -232,17 +232,20 @@ def _merge_small(
     min_cells: int,
     points: np.ndarray | None = None,
     heights: np.ndarray | None = None,
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """Relabel 0..K-1 after merging segments below `min_cells` grid cells into their geometric neighbour.
 
     With the cells' `points` (H, W, 3) and `heights` above the support (H, W), a small segment without a
     geometric neighbour joins the nearest large segment in 3D instead of being dropped, when it stands at
     least `_FRAGMENT_MIN_HEIGHT_M` high and lies within `_FRAGMENT_JOIN_M` of it (`_attach_fragments`).
+
+    Returns the labels and an (H, W) bool map of the cells of such attached fragments.
     """
     flat = labels.ravel()
     fg = flat >= 0
+    attached = np.zeros(labels.shape, dtype=bool)
     if not np.any(fg):
-        return labels
+        return labels, attached
     uniq, inverse, counts = np.unique(flat[fg], return_inverse=True, return_counts=True)
     compact = np.full(flat.shape, -1, dtype=np.int64)
     compact[fg] = inverse
@@ -261,6 +264,8 @@ def _merge_small(
     if points is not None and heights is not None:
         alone = small & (target == np.arange(len(uniq)))
         _attach_fragments(target, compact, alone, points.reshape(-1, 3), heights.ravel())
+        joined = alone & (target != np.arange(len(uniq)))
+        attached = (fg & joined[np.maximum(compact, 0)]).reshape(labels.shape)
     keep = ~small | (target != np.arange(len(uniq)))
     target = np.where(keep, target, -1)
     out = np.where(fg, target[np.maximum(compact, 0)], -1)
@@ -271,7 +276,7 @@ def _merge_small(
     remap = np.full(len(uniq), -1, dtype=np.int64)
     remap[old] = np.arange(len(old))
     out = np.where(out >= 0, remap[np.maximum(out, 0)], -1)
-    return out.reshape(labels.shape)
+    return out.reshape(labels.shape), attached
 
 
 def _attach_fragments(
@@ -598,12 +603,10 @@ def segment_objects(
     if plane is not None:
         with np.errstate(invalid="ignore"):
             heights = np.nan_to_num(Pg @ plane.normal_cam + plane.offset_m, nan=-1.0)
-    merged = _merge_small(labels, geo, min_cells)
-    labels = _merge_small(labels, geo, min_cells, Pg, heights)
     # cells of attached fragments: painted into their body's mask (the fit sees the handle), but left out of
     # the points that describe the body (footprint and shape family: a box's own stray cells at its far top
     # edge turned it "cylindrical" in a closed-loop episode, tabletop seed 739)
-    fragment = (labels >= 0) & (merged < 0)
+    labels, fragment = _merge_small(labels, geo, min_cells, Pg, heights)
     if plane is not None:
         wall = _wall_segments(labels, Pg, plane, config, span_m=_RESPLIT_SPAN_M)
         resplit = np.zeros(labels.shape, dtype=bool)
@@ -617,7 +620,7 @@ def segment_objects(
             # crease cells themselves join nothing: left out (the masks' one-step growth paints the
             # objects' side of the band back), not merged into whichever piece they touch most
             split, geo2 = _grid_labels(Pg, lab_g, inside & ~crease, f_px, s, config, crease)
-            split = _merge_small(split, geo2, min_cells)
+            split, _ = _merge_small(split, geo2, min_cells)
             labels = np.where(inside, np.where(split >= 0, split + labels.max() + 1, -1), labels)
             _, relabel = np.unique(labels, return_inverse=True)  # -1 stays first
             labels = relabel.reshape(labels.shape) - (1 if np.any(labels < 0) else 0)
