@@ -44,11 +44,14 @@ def grounder() -> Grounder:
     return Grounder(GroundingConfig())
 
 
+def matching_object(scene, mask: np.ndarray) -> tuple[str, float]:
+    """The ground-truth object `mask` overlaps most, and that IoU."""
+    return max(((n, iou(mask, scene.gt_mask == i)) for n, i in scene.ids.items()), key=lambda x: x[1])
+
+
 def best_object(scene, result) -> tuple[str, float]:
     """The ground-truth object the best candidate overlaps most, and that IoU."""
-    mask = result.candidates[0].mask
-    name, best = max(((n, iou(mask, scene.gt_mask == i)) for n, i in scene.ids.items()), key=lambda x: x[1])
-    return name, best
+    return matching_object(scene, result.candidates[0].mask)
 
 
 def test_support_plane_is_the_table(scene, grounder):
@@ -116,7 +119,7 @@ def test_unknown_object_still_ranks_every_candidate(scene, grounder):
     assert scores == sorted(scores, reverse=True)
     assert all(0.0 < s < 1.0 for s in scores)
     # each candidate is one object: IoU >= 0.5 with a distinct ground-truth mask (0.5: a unique match)
-    matched = {best_object(scene, type(result)(result.prompt, (c,), None))[0] for c in result.candidates}
+    matched = {matching_object(scene, c.mask)[0] for c in result.candidates}
     assert matched == set(scene.ids)
 
 
@@ -139,10 +142,7 @@ def test_candidates_are_consistent(scene, grounder):
 
 def test_measured_attributes_match_the_scene(scene, grounder):
     result = grounder.ground(scene.rgb, scene.depth_m, scene.intrinsics, "anything")
-    by_name = {
-        best_object(scene, type(result)(result.prompt, (c,), None))[0]: c.attributes
-        for c in result.candidates
-    }
+    by_name = {matching_object(scene, c.mask)[0]: c.attributes for c in result.candidates}
     expected_colour = {"can": "yellow", "mug": "red", "box": "blue", "bowl": "green", "ball": "orange"}
     for name, colour in expected_colour.items():
         assert by_name[name].colour_name == colour
@@ -254,9 +254,7 @@ def test_the_mugs_handle_is_seen_and_the_cups_have_none(scene, grounder):
     result = grounder.ground(scene.rgb, scene.depth_m, scene.intrinsics, "the cup")
     seen = {}
     for c in result.candidates:
-        name, overlap = max(
-            ((n, iou(c.mask, scene.gt_mask == i)) for n, i in scene.ids.items()), key=lambda x: x[1]
-        )
+        name, overlap = matching_object(scene, c.mask)
         if overlap >= MIN_NAMED_IOU:
             seen[name] = c.attributes.handle_seen
     assert seen.get("mug") is True
