@@ -336,19 +336,21 @@ def test_normal_equations_match_an_explicit_jacobian() -> None:
         np.testing.assert_allclose(g, g_ref, atol=1e-12)
 
 
-def test_containment_jacobian_matches_finite_differences() -> None:
-    # The containment term's residuals are piecewise linear in the box parameters; away from the kinks its
-    # analytic Jacobian must match central differences of the residuals (with a plane: bottom held). The
-    # ray-dependent noise margin is held constant within a step (a Gauss-Newton approximation), so it is
-    # off here.
+@pytest.mark.parametrize("round_section", [False, True])
+def test_containment_jacobian_matches_finite_differences(round_section: bool) -> None:
+    # The containment term's residuals are piecewise smooth in the box parameters (linear for a box, the
+    # radial distance for a body of revolution); away from the kinks its analytic Jacobian must match
+    # central differences of the residuals (with a plane: bottom held). The ray-dependent noise margin is
+    # held constant within a step (a Gauss-Newton approximation), so it is off here; the outlier cap is
+    # raised so that enough residuals of each kind pull.
     rng = np.random.default_rng(7)
     R = so3_exp(rng.normal(size=3))
     up = R[:, 1]
     obs = rng.normal(size=(200, 3)) * 0.06 + np.array([0.0, 0.0, 0.8])
-    cfg = FitConfig(contain_ray_margin_m=0.0)
+    cfg = FitConfig(contain_ray_margin_m=0.0, contain_cap_m=0.05)
     for plane in (None, (up, -float(up @ np.array([0.0, 0.05, 0.8])))):
         pb = _Problem(obs, None, np.zeros((1, 3)), np.zeros((1, 3)), up if plane else None, plane, np.eye(9),
-                      np.zeros(3), cfg)  # fmt: skip
+                      np.zeros(3), cfg, round_section=round_section)  # fmt: skip
         st = _State(R, np.array([0.01, -0.02, 0.79]), np.log(np.array([0.08, 0.1, 0.06])))
 
         def residuals(x: np.ndarray, st=st, pb=pb) -> np.ndarray:
@@ -366,8 +368,31 @@ def test_containment_jacobian_matches_finite_differences() -> None:
         J_num = np.column_stack(
             [(residuals(h * np.eye(9)[i]) - residuals(-h * np.eye(9)[i])) / (2 * h) for i in range(9)]
         )
-        # central differences of exact linear pieces: rounding only (residuals ~1e-2 m, h 1e-7)
+        # central differences of smooth pieces: rounding and, for the radial residual, its curvature over
+        # the step (h^2 / rho ~ 1e-12) only (residuals ~1e-2 m, h 1e-7)
         np.testing.assert_allclose(J, J_num, atol=1e-6)
+
+
+def test_round_containment_holds_points_in_the_inscribed_cylinder() -> None:
+    # A body of revolution fills its box's inscribed cylinder, not the box: a point in the box's corner
+    # (45 deg between the x and z axes, 0.9 of the half-width along each) lies 0.27 half-widths outside the
+    # cylinder and pays; the box alone lets it in. A point on the axis-aligned side inside both pays nothing.
+    cfg = FitConfig(contain_ray_margin_m=0.0, contain_margin_m=0.001, contain_cap_m=0.05)
+    half = 0.04
+    st = _State(np.eye(3), np.zeros(3), np.log(np.full(3, 2.0 * half)))
+    corner = np.array([[0.9 * half, 0.0, 0.9 * half]])
+    side = np.array([[0.95 * half, 0.0, 0.0]])
+    for pts, box_cost, round_pays in ((corner, 0.0, True), (side, 0.0, False)):
+        costs = {}
+        for round_section in (False, True):
+            pb = _Problem(pts + [0.0, 0.0, 0.8], None, np.zeros((1, 3)), np.zeros((1, 3)), None, None,
+                          np.eye(9), np.zeros(3), cfg, round_section=round_section)  # fmt: skip
+            costs[round_section], _ = _containment_cost(pb, _State(st.R, np.array([0.0, 0.0, 0.8]), st.log_s),
+                                                        np.exp(st.log_s), np.array([0.0, 0.0, 0.8]))  # fmt: skip
+        assert costs[False] == box_cost
+        # excess beyond the margin: 0.9 sqrt(2) half - half - 1 mm = 9.9 mm, squared and weighted
+        want = cfg.contain_weight * (math.hypot(0.9 * half, 0.9 * half) - half - 0.001) ** 2 if round_pays else 0.0
+        assert costs[True] == pytest.approx(want, rel=1e-9)
 
 
 # --------------------------------------------------------------------------------------------------------

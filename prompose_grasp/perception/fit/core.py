@@ -133,7 +133,9 @@ class FitConfig:
             a Chamfer term. The seen surface lies inside the true box, so its extents are lower bounds on
             the box; the Chamfer terms alone let a prior whose proportions differ from the instance's (a
             bottle's shoulder higher than this one's) trade the seen extent for a better shape match (the
-            bottles' radius came out ~8 % small). 0 turns it off.
+            bottles' radius came out ~8 % small). A body of revolution (symmetry "y_continuous") holds its
+            points in the cylinder inscribed in the box: the box's corners would let a round section ~6 %
+            narrower than the seen one contain it (docs/fit.md). 0 turns it off.
         contain_margin_m: excess tolerated before the containment term pulls [m]: about one standard
             deviation of the depth noise of a RealSense at ~1 m, so the noise does not inflate the box.
         contain_cap_m: a point outside the box by more than this (beyond the margin) is an outlier of the
@@ -535,6 +537,8 @@ class _Problem:
     # re-evaluates the state the optimiser ended on; and the observation's unit rays, computed once
     memo: list | None = field(default=None, repr=False, compare=False)
     rays: np.ndarray | None = field(default=None, repr=False, compare=False)
+    # a body of revolution (y_continuous): the containment term holds the points in its inscribed cylinder
+    round_section: bool = False
 
     def centre(self, st: _State) -> np.ndarray:
         if self.plane is None:
@@ -688,19 +692,34 @@ def _containment_cost(pb: _Problem, st: _State, s: np.ndarray, t: np.ndarray) ->
 
     Residual per observed point y and box axis i: e = |l_i| - s_i / 2 - margin when positive, with
     l = R^T (y - t) the point in box axes; Huber-weighted, averaged over the observed points, times
-    `contain_weight`. Parameters as in `_normal_equations` (left rotation increment, centre or bottom,
-    log size); with a plane, the centre moves with log s_y (bottom held).
+    `contain_weight`. A body of revolution (`_Problem.round_section`) holds its points in the cylinder
+    inscribed in the box instead: its x and z residuals become one radial one, e = |(l_x, l_z)| - s_x / 2
+    - margin (s_x = s_z for it). Parameters as in `_normal_equations` (left rotation increment, centre or
+    bottom, log size); with a plane, the centre moves with log s_y (bottom held).
     """
     lam = pb.config.contain_weight
     if lam <= 0.0:
         return 0.0, None
     d = pb.obs - t
     loc = d @ st.R
-    # depth noise moves a point along its ray: along a box axis i it adds |R_i . ray| of it
+    # depth noise moves a point along its ray: along a direction u (box axes) it adds |R u . ray| of it
     if pb.rays is None:  # the observation's unit rays, once per problem
         pb.rays = pb.obs / np.linalg.norm(pb.obs, axis=1, keepdims=True)
-    margin = pb.config.contain_margin_m + pb.config.contain_ray_margin_m * np.abs(pb.rays @ st.R)
-    exc = np.abs(loc) - 0.5 * s - margin
+    ray_loc = pb.rays @ st.R
+    if pb.round_section:
+        rho = np.hypot(loc[:, 0], loc[:, 2])
+        radial = np.zeros_like(loc)  # (N, 3) the unit radial direction of each point, box axes
+        on_axis = rho < 1e-9
+        radial[:, 0] = np.where(on_axis, 1.0, loc[:, 0] / np.where(on_axis, 1.0, rho))
+        radial[:, 2] = np.where(on_axis, 0.0, loc[:, 2] / np.where(on_axis, 1.0, rho))
+        extent = np.column_stack([rho, np.abs(loc[:, 1])])
+        half = np.array([0.25 * (s[0] + s[2]), 0.5 * s[1]])
+        along = np.column_stack([np.einsum("ij,ij->i", ray_loc, radial), ray_loc[:, 1]])
+    else:
+        radial = None
+        extent, half, along = np.abs(loc), 0.5 * s, ray_loc
+    margin = pb.config.contain_margin_m + pb.config.contain_ray_margin_m * np.abs(along)
+    exc = extent - half - margin
     cap = pb.config.contain_cap_m
     n = len(pb.obs)
     delta = pb.config.huber_m
@@ -711,21 +730,32 @@ def _containment_cost(pb: _Problem, st: _State, s: np.ndarray, t: np.ndarray) ->
     if len(k_pt) == 0:
         return cost_out, None
     e = exc[k_pt, k_ax]
-    return cost_out + lam * float(_huber_cost(e, delta).sum()) / n, (d, loc, k_pt, k_ax, e)
+    # each residual's outward direction (box axes) and d e / d log s
+    out_loc = np.zeros((len(e), 3))
+    ds = np.zeros((len(e), 3))
+    if radial is not None:
+        side = k_ax == 0
+        out_loc[side] = radial[k_pt[side]]
+        ds[side, 0], ds[side, 2] = -0.25 * s[0], -0.25 * s[2]
+        top = ~side
+        out_loc[top, 1] = np.sign(loc[k_pt[top], 1])
+        ds[top, 1] = -0.5 * s[1]
+    else:
+        out_loc[np.arange(len(e)), k_ax] = np.sign(loc[k_pt, k_ax])
+        ds[np.arange(len(e)), k_ax] = -0.5 * s[k_ax]
+    return cost_out + lam * float(_huber_cost(e, delta).sum()) / n, (d[k_pt], out_loc @ st.R.T, ds, e)
 
 
 def _containment_jacobian(pb: _Problem, st: _State, s: np.ndarray, part: tuple):
     """The containment term's (J (K, 9), weights (K,), residuals (K,)) from `_containment_cost`'s terms."""
-    d, loc, k_pt, k_ax, e = part
-    sg = np.sign(loc[k_pt, k_ax])
-    Ri = st.R[:, k_ax].T  # (K, 3) the box axis of each residual
+    d, out, ds, e = part  # per residual: the point minus the centre, its outward unit direction (camera)
     J = np.zeros((len(e), 9))
-    J[:, 0:3] = sg[:, None] * _cross_rows(Ri, d[k_pt])  # d l_i / d omega = R_i x d
-    J[:, 3:6] = -sg[:, None] * Ri
-    J[np.arange(len(e)), 6 + k_ax] = -0.5 * s[k_ax]
+    J[:, 0:3] = _cross_rows(out, d)  # d (out . R^T d) / d omega = out x d
+    J[:, 3:6] = -out
+    J[:, 6:9] = ds
     if pb.plane is not None:
         assert pb.up is not None
-        J[:, 7] += -sg * (Ri @ pb.up) * 0.5 * s[1]  # the centre rises with the height (bottom held)
+        J[:, 7] += -(out @ pb.up) * 0.5 * s[1]  # the centre rises with the height (bottom held)
     w = pb.config.contain_weight * _huber_weights(e, pb.config.huber_m) / len(pb.obs)
     return J, w, e
 
@@ -1260,7 +1290,7 @@ def fit_pose(
             pp, pn = _prior_subset(shp, n_p)
             tree = next((q.obs_tree for (_, m, _, _), q in problems.items() if m == n_o), None)
             pb = _Problem(o, tree or cKDTree(o), pp, pn, up, plane, basis, np.log(shp.aspect), cfg,
-                          view if with_view else None)  # fmt: skip
+                          view if with_view else None, round_section=sym == "y_continuous")  # fmt: skip
             problems[key] = pb
         return pb
 
