@@ -379,20 +379,19 @@ def test_round_containment_holds_points_in_the_inscribed_cylinder() -> None:
     # cylinder and pays; the box alone lets it in. A point on the axis-aligned side inside both pays nothing.
     cfg = FitConfig(contain_ray_margin_m=0.0, contain_margin_m=0.001, contain_cap_m=0.05)
     half = 0.04
-    st = _State(np.eye(3), np.zeros(3), np.log(np.full(3, 2.0 * half)))
-    corner = np.array([[0.9 * half, 0.0, 0.9 * half]])
-    side = np.array([[0.95 * half, 0.0, 0.0]])
-    for pts, box_cost, round_pays in ((corner, 0.0, True), (side, 0.0, False)):
-        costs = {}
-        for round_section in (False, True):
-            pb = _Problem(pts + [0.0, 0.0, 0.8], None, np.zeros((1, 3)), np.zeros((1, 3)), None, None,
-                          np.eye(9), np.zeros(3), cfg, round_section=round_section)  # fmt: skip
-            costs[round_section], _ = _containment_cost(pb, _State(st.R, np.array([0.0, 0.0, 0.8]), st.log_s),
-                                                        np.exp(st.log_s), np.array([0.0, 0.0, 0.8]))  # fmt: skip
-        assert costs[False] == box_cost
-        # excess beyond the margin: 0.9 sqrt(2) half - half - 1 mm = 9.9 mm, squared and weighted
-        want = cfg.contain_weight * (math.hypot(0.9 * half, 0.9 * half) - half - 0.001) ** 2 if round_pays else 0.0
-        assert costs[True] == pytest.approx(want, rel=1e-9)
+    centre = np.array([0.0, 0.0, 0.8])
+    size = np.full(3, 2.0 * half)
+    st = _State(np.eye(3), centre, np.log(size))
+    corner = centre + np.array([0.9 * half, 0.0, 0.9 * half])
+    side = centre + np.array([0.95 * half, 0.0, 0.0])
+    # the corner's excess beyond the margin: 0.9 sqrt(2) half - half - 1 mm = 9.9 mm, squared and weighted
+    corner_cost = cfg.contain_weight * (math.hypot(0.9 * half, 0.9 * half) - half - 0.001) ** 2
+    for point, round_cost in ((corner, corner_cost), (side, 0.0)):
+        for round_section, want in ((False, 0.0), (True, round_cost)):
+            pb = _Problem(point[None, :], None, np.zeros((1, 3)), np.zeros((1, 3)), None, None, np.eye(9),
+                          np.zeros(3), cfg, round_section=round_section)  # fmt: skip
+            cost, _ = _containment_cost(pb, st, size, centre)
+            assert cost == pytest.approx(want, rel=1e-9, abs=0.0)
 
 
 # --------------------------------------------------------------------------------------------------------
