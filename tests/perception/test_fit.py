@@ -535,6 +535,32 @@ def test_occluded_object_keeps_its_size(library: PriorLibrary) -> None:
     assert 0.2 < with_scene.coverage < 0.7
 
 
+@pytest.mark.parametrize("family", ["bottle", "laptop"])
+def test_object_cut_by_the_image_border_keeps_its_size(library: PriorLibrary, family: str) -> None:
+    # The object stands high in the image: the top row cuts off its upper part (a bottle's shoulder and
+    # neck, a laptop's screen top), so the seen points end at the border, not at the object's end. The object
+    # is its family's prior at the typical size, so the prior's aspect, scaled to the uncut width, gives the
+    # cut height exactly; without the scene (no image bounds) the fit keeps the seen part only.
+    prior = library.family_prior(family)
+    rng = np.random.default_rng(3)
+    elevation = math.radians(40.0)
+    up = np.array([0.0, -math.cos(elevation), -math.sin(elevation)])
+    R = np.column_stack([[1.0, 0.0, 0.0], up, np.cross([1.0, 0.0, 0.0], up)])
+    gt = Pose9D(R, np.array([0.02, -0.26, 0.75]), prior.typical_size_m)
+    scene, plane = _alone(prior, gt, up, 1)
+    assert scene.mask[0].any() and not scene.mask[-1].any()  # the construction: cut at the top row only
+    pts = _observed(scene.depth_m, scene.mask, rng)
+    seen_height = float(np.max(pts @ plane[:3] + plane[3]))
+    assert seen_height < 0.85 * gt.size[1]  # more than 15 % of the height is beyond the border
+    with_scene = fit_pose(pts, prior, support_plane_cam=plane, scene=scene)
+    without = fit_pose(pts, prior, support_plane_cam=plane)
+    # the height within 10 % (SIZE_RTOL: the width it is scaled from is fitted to a few %); the seen part
+    # alone is short of it
+    assert with_scene.pose.size[1] == pytest.approx(gt.size[1], rel=SIZE_RTOL)
+    assert without.pose.size[1] < 0.9 * gt.size[1]
+    assert _iou(with_scene.pose, gt, prior.symmetry) >= IOU_MIN > _iou(without.pose, gt, prior.symmetry)
+
+
 def test_mask_coverage_is_the_seen_share_of_the_facing_surface(library: PriorLibrary) -> None:
     # A can rendered alone: its mask shows the whole side the camera faces. Cut at the column of its axis
     # the mask shows about half of it, empty none; the fit reports the coverage of its own pose.

@@ -72,6 +72,15 @@ _YAWS = {"none": 8, "box": 4, "y_2fold": 8, "x_continuous": 4, "y_continuous": 1
 #: Width factors of the initial section of round shapes (one hypothesis each, see `fit_pose`).
 _ROUND_WIDTHS = (1.0, 1.15, 1.3)
 
+#: An observed point whose pixel lies within this many pixels of the image border shows where the image cuts
+#: the object off (`_cut_sides`).
+_BORDER_PX = 2.0
+#: The image border cuts off a side of the box when at least this share of the points at that end of the box
+#: axis (its outer 2 %, `_CUT_END`) lie on the border (`_cut_sides`): where the border crosses the object's
+#: end, the farthest points along the axis are the border's; at a free end they are the object's silhouette.
+_CUT_SHARE = 0.5
+_CUT_END = 2.0
+
 #: Sizes are kept in [1 mm, 20 m]: outside that range a fit has diverged, whatever the object.
 _LOG_SIZE_MIN, _LOG_SIZE_MAX = math.log(1e-3), math.log(20.0)
 
@@ -539,6 +548,8 @@ class _Problem:
     rays: np.ndarray | None = field(default=None, repr=False, compare=False)
     # a body of revolution (y_continuous): the containment term holds the points in its inscribed cylinder
     round_section: bool = False
+    # `scene` is used for its image bounds only (coarse stages of an object the image border cuts off)
+    scene_image_only: bool = False
 
     def centre(self, st: _State) -> np.ndarray:
         if self.plane is None:
@@ -636,7 +647,10 @@ def _objective(pb: _Problem, st: _State):
         visible &= _not_self_occluded(x, s, cos_view)
     if pb.scene is not None:
         idx = np.flatnonzero(visible)  # only the points still in: the projection costs per point
-        visible[idx] = _observable(pb.scene, x[idx], pb.config.occlusion_margin_m)
+        if pb.scene_image_only:
+            visible[idx] = _pixels(pb.scene.intrinsics, x[idx])[0]
+        else:
+            visible[idx] = _observable(pb.scene, x[idx], pb.config.occlusion_margin_m)
     delta = pb.config.huber_m
 
     # observation -> prior: every prior point may be the nearest one (see module docstring);
@@ -917,6 +931,28 @@ def _proper_axis_rotations(U: np.ndarray, symmetry: str) -> list[np.ndarray]:
     return out
 
 
+def _on_border(intr: CameraIntrinsics, pts: np.ndarray) -> np.ndarray:
+    """(N,) bool: points `pts` (N, 3) whose pixel lies within `_BORDER_PX` of the image border."""
+    z = pts[:, 2]
+    u = intr.fx * pts[:, 0] / z + intr.cx
+    v = intr.fy * pts[:, 1] / z + intr.cy
+    b = _BORDER_PX
+    return (u <= b) | (u >= intr.width - 1 - b) | (v <= b) | (v >= intr.height - 1 - b)
+
+
+def _cut_sides(local: np.ndarray, border: np.ndarray) -> np.ndarray:
+    """(3, 2) bool: which sides (low, high) of each box axis the image border cuts off (`_CUT_SHARE`), from
+    the points in box axes `local` (N, 3) and which of them lie on the border (`_on_border`)."""
+    cut = np.zeros((3, 2), dtype=bool)
+    if not np.any(border):
+        return cut
+    lo, hi = np.percentile(local, [_CUT_END, 100.0 - _CUT_END], axis=0)
+    for i in range(3):
+        for j, end in enumerate((local[:, i] <= lo[i], local[:, i] >= hi[i])):
+            cut[i, j] = np.count_nonzero(end & border) >= _CUT_SHARE * np.count_nonzero(end)
+    return cut
+
+
 def _initial_state(
     pts: np.ndarray,
     R: np.ndarray,
@@ -925,38 +961,51 @@ def _initial_state(
     plane,
     symmetry: str,
     widen: float = 1.0,
+    border: np.ndarray | None = None,
 ) -> _State:
     """Amodal initial box for the rotation `R`: visible extents as lower bounds, prior aspect for the rest,
-    grown away from the camera; bottom on the plane when one is given."""
+    grown away from the camera; bottom on the plane when one is given.
+
+    `border` (N,) marks the points on the image border (`_on_border`): a side the border cuts off
+    (`_cut_sides`) is not seen where it ends, so its axis takes its size from the prior's aspect scaled to
+    the uncut axes, and the box grows across the border there (the fit cannot tell: the prior's points
+    beyond the image do not pull)."""
     local = pts @ R  # object-axis coordinates of the points (origin at the camera)
     lo = np.percentile(local, 2.0, axis=0)
     hi = np.percentile(local, 98.0, axis=0)
     ext = np.maximum(hi - lo, 1e-3)
+    cut = np.zeros((3, 2), dtype=bool) if border is None else _cut_sides(local, border)
     if plane is not None:
         normal, d = plane
         heights = pts @ normal + d
         top = float(np.percentile(heights, 98.0))
         ext[1] = max(top, 1e-3)
+        cut[1, 0] = False  # the bottom rests on the plane, seen or not
     aspect = prior.aspect
+    axis_cut = cut.any(axis=1)
     if symmetry in ("y_continuous", "spherical"):
         ext[0] = ext[2] = max(ext[0], ext[2])
-    # Scale of the prior's aspect that just covers the seen extents along the two best-seen axes; an axis
-    # seen shorter than that (the depth direction) is grown to it.
+        axis_cut[[0, 2]] = axis_cut[0] or axis_cut[2]  # one section width
+    # Scale of the prior's aspect that just covers the seen extents along the two best-seen uncut axes; an
+    # axis seen shorter than that (the depth direction) is grown to it, a cut one to the aspect itself.
     ratio = ext / aspect
-    kappa = float(np.sort(ratio)[1])
-    size = np.maximum(ext, kappa * aspect * 0.9)
+    free = np.sort(ratio[~axis_cut]) if not axis_cut.all() else np.sort(ratio)
+    kappa = float(free[max(0, len(free) - 2)])
+    size = np.maximum(ext, kappa * aspect * np.where(axis_cut, 1.0, 0.9))
     if symmetry in ("y_continuous", "spherical"):
         size[0] = size[2] = max(size[0], size[2])
     size[[0, 2]] *= widen
     centre_local = 0.5 * (lo + hi)
-    # grow the box away from the camera: the seen face stays where it is
+    # grow the box away from the camera (the seen face stays where it is), or across the border that cuts it
     view = pts.mean(axis=0) @ R  # camera -> object direction in object axes (unnormalised)
+    direction = np.where(cut[:, 0] | cut[:, 1], cut[:, 1].astype(float) - cut[:, 0], np.sign(view))
     grow = size - ext
-    centre_local = centre_local + 0.5 * grow * np.sign(view)
+    centre_local = centre_local + 0.5 * grow * direction
     centre = R @ centre_local
     if plane is not None:
         normal, d = plane
-        size[1] = ext[1]
+        if not cut[1, 1]:
+            size[1] = ext[1]
         bottom = centre - (centre @ normal + d) * normal
         return _State(R.copy(), bottom, np.log(size))
     return _State(R.copy(), centre, np.log(size))
@@ -1278,19 +1327,26 @@ def fit_pose(
     # hypotheses at the best yaw of the mean shape (see the coarse stage below).
     variants = articulated_variants(prior) if cfg.articulations and not warm else ()
     shapes = (prior, *variants)
-    problems: dict[tuple[int, int, int, bool], _Problem] = {}
+    problems: dict[tuple[int, int, int, bool, bool], _Problem] = {}
+
+    # Points on the image border: the sides they cut off take the prior's aspect (`_initial_state`), and the
+    # coarse stages, which rank hypotheses without the scene view, still know the image's bounds for them.
+    border = None if view is None else _on_border(view.intrinsics, pts)
+    cut_by_image = border is not None and bool(np.any(border))
 
     def problem(k_shape: int, n_o: int, n_p: int, k_stage: int = len(cfg.stages) - 1) -> _Problem:
         with_view = view is not None and k_stage >= len(cfg.stages) - cfg.occlusion_stages
-        key = (k_shape, n_o, n_p, with_view)
+        image_only = not with_view and cut_by_image
+        key = (k_shape, n_o, n_p, with_view, image_only)
         pb = problems.get(key)
         if pb is None:
             o = obs[:n_o]  # FPS order: a prefix is a coarser farthest-point sample
             shp = shapes[k_shape]
             pp, pn = _prior_subset(shp, n_p)
-            tree = next((q.obs_tree for (_, m, _, _), q in problems.items() if m == n_o), None)
+            tree = next((q.obs_tree for (_, m, *_), q in problems.items() if m == n_o), None)
             pb = _Problem(o, tree or cKDTree(o), pp, pn, up, plane, basis, np.log(shp.aspect), cfg,
-                          view if with_view else None, round_section=sym == "y_continuous")  # fmt: skip
+                          view if with_view or image_only else None, round_section=sym == "y_continuous",
+                          scene_image_only=image_only)  # fmt: skip
             problems[key] = pb
         return pb
 
@@ -1330,7 +1386,7 @@ def fit_pose(
         # A round shape has one rotation hypothesis; its section is tried at a few widths instead, since
         # a narrower section closer to the camera is a local minimum of the visible-arc fit.
         widths = _ROUND_WIDTHS if sym in ("y_continuous", "spherical") and up is not None else (1.0,)
-        states = [_initial_state(pts, R, prior, up, plane, sym, w) for R in Rs for w in widths]
+        states = [_initial_state(pts, R, prior, up, plane, sym, w, border) for R in Rs for w in widths]
 
     # 3. optimise: coarse stage on all hypotheses, refinement of the best few
     total_iters = 0
@@ -1358,7 +1414,7 @@ def fit_pose(
                 for kv, shp in enumerate(variants, start=1):
                     pb = problem(kv, n_o, stage.prior_points, k)
                     it0 = pb.iterations
-                    st0 = _initial_state(pts, best_R, shp, up, plane, sym)
+                    st0 = _initial_state(pts, best_R, shp, up, plane, sym, border=border)
                     st2, cost = _optimise(pb, st0, stage.iterations)
                     total_iters += pb.iterations - it0
                     ranked.append((cost, st2, kv))
