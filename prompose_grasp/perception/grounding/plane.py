@@ -60,7 +60,7 @@ _UP_MARGIN = 0.3
 _WALL_RIVAL_SHARE = 0.3
 
 
-#: The support plane's last refit keeps points within this many sigma(z) of the depth noise of it ...
+#: The support plane's last refits keep the points within this many sigma(z) of the depth noise of it ...
 _NOISE_BAND_SIGMAS = 2.5
 #: ... and at least this close [m] (a near table's sigma is ~1 mm; the plane's own error is a few mm).
 _NOISE_BAND_MIN_M = 0.004
@@ -234,7 +234,7 @@ def _noise_band_refit(points: np.ndarray, plane: SupportPlane, config: Grounding
 
     The fixed RANSAC band also holds the top of flat objects 1-2 cm high near the camera (a laptop's base),
     whose points tilted the table (dev 22 / 23: 90th percentile of the tilt against the objects' true up
-    0.43 / 0.88 deg -> 0.03 / 0.24 deg). Only the chosen support is refitted: the candidates' ranking and
+    0.43 / 0.88 deg -> 0.03 / 0.04 deg). Only the chosen support is refitted: the candidates' ranking and
     the points each takes from the next are the fixed band's.
     """
     n, d = plane.normal_cam, plane.offset_m
