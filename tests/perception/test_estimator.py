@@ -319,10 +319,13 @@ def test_slow_camera_refits_once_the_view_has_turned_and_turns_the_track_back():
         refits.append(tracker.refits)
         taken.append(tracker.refits_taken)
         errors.append(_yaw_error_deg(est.pose, gt_world.transformed(np.linalg.inv(frame.T_base_cam))))
-    assert refits[-1] == 1
     k_refit = refits.index(1)
     assert 3 <= k_refit <= 5  # 8 deg turned: frame 4, give or take the fitted poses' noise
-    assert taken == [0] * k_refit + [1] * (8 - k_refit)  # the verdict is taken on the re-fitted frame
+    # one re-fit until the view has turned most of another 8 deg since it (frame 8 nominally; the turn is
+    # measured on the tracked poses, whose yaw wanders by a few degrees, so a second one may start on the
+    # last frame), and its verdict is taken on the re-fitted frame
+    assert refits[k_refit : k_refit + 3] == [1, 1, 1]
+    assert taken[: k_refit + 3] == [0] * k_refit + [1, 1, 1]
     # the handle stays on the wrong side until then (> 90 deg), then within 15 deg of the truth (the bar of
     # the 12-deg-a-frame test above) from that frame on
     assert min(errors[:k_refit]) > 90.0
