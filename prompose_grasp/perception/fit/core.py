@@ -76,10 +76,10 @@ _ROUND_WIDTHS = (1.0, 1.15, 1.3)
 #: the object off (`_cut_sides`).
 _BORDER_PX = 2.0
 #: The image border cuts off a side of the box when at least this share of the points at that end of the box
-#: axis (its outer 2 %, `_CUT_END`) lie on the border (`_cut_sides`): where the border crosses the object's
-#: end, the farthest points along the axis are the border's; at a free end they are the object's silhouette.
+#: axis (its outer 2 %, beyond the percentiles of the seen extents) lie on the border (`_cut_sides`): where
+#: the border crosses the object's end, the farthest points along the axis are the border's; at a free end
+#: they are the object's silhouette.
 _CUT_SHARE = 0.5
-_CUT_END = 2.0
 
 #: Sizes are kept in [1 mm, 20 m]: outside that range a fit has diverged, whatever the object.
 _LOG_SIZE_MIN, _LOG_SIZE_MAX = math.log(1e-3), math.log(20.0)
@@ -723,9 +723,10 @@ def _containment_cost(pb: _Problem, st: _State, s: np.ndarray, t: np.ndarray) ->
     if pb.round_section:
         rho = np.hypot(loc[:, 0], loc[:, 2])
         radial = np.zeros_like(loc)  # (N, 3) the unit radial direction of each point, box axes
-        on_axis = rho < 1e-9
-        radial[:, 0] = np.where(on_axis, 1.0, loc[:, 0] / np.where(on_axis, 1.0, rho))
-        radial[:, 2] = np.where(on_axis, 0.0, loc[:, 2] / np.where(on_axis, 1.0, rho))
+        on_axis = rho < 1e-9  # a point on the axis: any radial direction, +x
+        safe = np.where(on_axis, 1.0, rho)
+        radial[:, 0] = np.where(on_axis, 1.0, loc[:, 0] / safe)
+        radial[:, 2] = np.where(on_axis, 0.0, loc[:, 2] / safe)
         extent = np.column_stack([rho, np.abs(loc[:, 1])])
         half = np.array([0.25 * (s[0] + s[2]), 0.5 * s[1]])
         along = np.column_stack([np.einsum("ij,ij->i", ray_loc, radial), ray_loc[:, 1]])
@@ -933,20 +934,18 @@ def _proper_axis_rotations(U: np.ndarray, symmetry: str) -> list[np.ndarray]:
 
 def _on_border(intr: CameraIntrinsics, pts: np.ndarray) -> np.ndarray:
     """(N,) bool: points `pts` (N, 3) whose pixel lies within `_BORDER_PX` of the image border."""
-    z = pts[:, 2]
-    u = intr.fx * pts[:, 0] / z + intr.cx
-    v = intr.fy * pts[:, 1] / z + intr.cy
+    u, v = intr.project(pts).T
     b = _BORDER_PX
     return (u <= b) | (u >= intr.width - 1 - b) | (v <= b) | (v >= intr.height - 1 - b)
 
 
-def _cut_sides(local: np.ndarray, border: np.ndarray) -> np.ndarray:
+def _cut_sides(local: np.ndarray, lo: np.ndarray, hi: np.ndarray, border: np.ndarray) -> np.ndarray:
     """(3, 2) bool: which sides (low, high) of each box axis the image border cuts off (`_CUT_SHARE`), from
-    the points in box axes `local` (N, 3) and which of them lie on the border (`_on_border`)."""
+    the points in box axes `local` (N, 3), their 2nd and 98th percentiles `lo`, `hi` (3,) (the ends: the
+    outer 2 % of the points) and which of them lie on the border (`_on_border`)."""
     cut = np.zeros((3, 2), dtype=bool)
     if not np.any(border):
         return cut
-    lo, hi = np.percentile(local, [_CUT_END, 100.0 - _CUT_END], axis=0)
     for i in range(3):
         for j, end in enumerate((local[:, i] <= lo[i], local[:, i] >= hi[i])):
             cut[i, j] = np.count_nonzero(end & border) >= _CUT_SHARE * np.count_nonzero(end)
@@ -974,7 +973,7 @@ def _initial_state(
     lo = np.percentile(local, 2.0, axis=0)
     hi = np.percentile(local, 98.0, axis=0)
     ext = np.maximum(hi - lo, 1e-3)
-    cut = np.zeros((3, 2), dtype=bool) if border is None else _cut_sides(local, border)
+    cut = np.zeros((3, 2), dtype=bool) if border is None else _cut_sides(local, lo, hi, border)
     if plane is not None:
         normal, d = plane
         heights = pts @ normal + d
@@ -1331,7 +1330,8 @@ def fit_pose(
 
     # Points on the image border: the sides they cut off take the prior's aspect (`_initial_state`), and the
     # coarse stages, which rank hypotheses without the scene view, still know the image's bounds for them.
-    border = None if view is None else _on_border(view.intrinsics, pts)
+    # A warm start has neither (its one stage has the whole scene view).
+    border = None if view is None or warm else _on_border(view.intrinsics, pts)
     cut_by_image = border is not None and bool(np.any(border))
 
     def problem(k_shape: int, n_o: int, n_p: int, k_stage: int = len(cfg.stages) - 1) -> _Problem:
