@@ -189,7 +189,8 @@ def _frame(
     np.minimum.at(obj, (uv[ok, 1], uv[ok, 0]), pts_cam[ok, 2])
     mask = np.isfinite(obj) & ((depth <= 0.0) | (obj < depth - 0.002))  # sky behind the top: depth 0
     depth = np.where(mask, obj, depth)
-    depth = depth + rng.normal(size=depth.shape) * (0.001 + 0.0037 * depth**2)  # D435-like axial noise
+    noise = rng.normal(size=depth.shape) * (0.001 + 0.0037 * depth**2)  # D435-like axial noise
+    depth = np.where(depth > 0.0, depth + noise, 0.0)  # the sky stays "no reading", not millimetres away
     rgb = np.full((h, w, 3), 128, dtype=np.uint8)
     return RGBDFrame(rgb, depth.astype(np.float32), K_ORBIT, 0.0, T_base_cam=T_world_cam), mask
 

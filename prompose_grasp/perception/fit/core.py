@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.ndimage import minimum_filter
 from scipy.spatial import cKDTree
 
 from prompose_grasp.errors import InvalidInputError
@@ -75,10 +76,14 @@ _ROUND_WIDTHS = (1.0, 1.15, 1.3)
 #: An observed point whose pixel lies within this many pixels of the image border shows where the image cuts
 #: the object off (`_cut_sides`).
 _BORDER_PX = 2.0
-#: The image border cuts off a side of the box when at least this share of the points at that end of the box
-#: axis (its outer 2 %, beyond the percentiles of the seen extents) lie on the border (`_cut_sides`): where
-#: the border crosses the object's end, the farthest points along the axis are the border's; at a free end
-#: they are the object's silhouette.
+#: An observed point with a pixel off the object's mask within this many pixels that reads nearer (by the
+#: occlusion margin) lies on an occluder's edge (`_next_to_occluder`): the grid of a segmentation mask is
+#: 2-4 px, so a mask edge and the occluder's first readings can be that far apart.
+_OCCLUDER_PX = 3
+#: The image border or an occluder cuts off a side of the box when at least this share of the points at that
+#: end of the box axis (its outer 2 %, beyond the percentiles of the seen extents) lie on such a cut edge
+#: (`_cut_sides`): where the cut crosses the object's end, the farthest points along the axis are the cut's;
+#: at a free end they are the object's own silhouette.
 _CUT_SHARE = 0.5
 
 #: Sizes are kept in [1 mm, 20 m]: outside that range a fit has diverged, whatever the object.
@@ -160,7 +165,8 @@ class FitConfig:
             image border shrank to its visible fragment (docs/fit.md).
         occlusion_stages: the scene view is used in this many of the last stages of a cold start (and on
             warm starts); the coarse stages rank the hypotheses without it. With it in all four stages the
-            coarse ranking dropped the right yaw of a few more mugs on the dev splits (docs/fit.md).
+            coarse ranking dropped the right yaw of a few more mugs on the dev splits (docs/fit.md). An
+            object an occluder cuts off (`_next_to_occluder`) has it in every stage.
         handle_band_tol, handle_band_min, handle_scan_step_deg, handle_margin_m, handle_min_points: a prior
             with a round body and a protrusion (`priors.library.round_body_axis`: a mug and its handle).
             When fewer than `handle_min_points` observed points lie outside the fitted body by more than
@@ -939,16 +945,34 @@ def _on_border(intr: CameraIntrinsics, pts: np.ndarray) -> np.ndarray:
     return (u <= b) | (u >= intr.width - 1 - b) | (v <= b) | (v >= intr.height - 1 - b)
 
 
-def _cut_sides(local: np.ndarray, lo: np.ndarray, hi: np.ndarray, border: np.ndarray) -> np.ndarray:
-    """(3, 2) bool: which sides (low, high) of each box axis the image border cuts off (`_CUT_SHARE`), from
-    the points in box axes `local` (N, 3), their 2nd and 98th percentiles `lo`, `hi` (3,) (the ends: the
-    outer 2 % of the points) and which of them lie on the border (`_on_border`)."""
+def _next_to_occluder(scene: SceneView, pts: np.ndarray, margin: float) -> np.ndarray:
+    """(N,) bool: observed points `pts` (N, 3) with a pixel off the object's mask within `_OCCLUDER_PX` of
+    theirs whose depth reading is nearer than the point by more than `margin`: the object's silhouette there
+    is an occluder's edge, not the object's end."""
+    intr = scene.intrinsics
+    u, v = np.rint(intr.project(pts)).astype(np.intp).T
+    u = np.clip(u, 0, intr.width - 1)
+    v = np.clip(v, 0, intr.height - 1)
+    r = _OCCLUDER_PX
+    x0, x1 = max(0, int(u.min()) - r), min(intr.width, int(u.max()) + r + 1)
+    y0, y1 = max(0, int(v.min()) - r), min(intr.height, int(v.max()) + r + 1)
+    d = scene.depth_m[y0:y1, x0:x1]
+    with np.errstate(invalid="ignore"):
+        other = ~scene.mask[y0:y1, x0:x1] & (d > 0.0)  # NaN (no reading) compares False
+    nearest = minimum_filter(np.where(other, d, np.inf), size=2 * r + 1, mode="constant", cval=np.inf)
+    return nearest[v - y0, u - x0] < pts[:, 2] - margin
+
+
+def _cut_sides(local: np.ndarray, lo: np.ndarray, hi: np.ndarray, cut_edge: np.ndarray) -> np.ndarray:
+    """(3, 2) bool: which sides (low, high) of each box axis the image border or an occluder cuts off
+    (`_CUT_SHARE`), from the points in box axes `local` (N, 3), their 2nd and 98th percentiles `lo`, `hi`
+    (3,) (the ends: the outer 2 % of the points) and which of them lie on a cut edge (`cut_edge`, (N,))."""
     cut = np.zeros((3, 2), dtype=bool)
-    if not np.any(border):
+    if not np.any(cut_edge):
         return cut
     for i in range(3):
         for j, end in enumerate((local[:, i] <= lo[i], local[:, i] >= hi[i])):
-            cut[i, j] = np.count_nonzero(end & border) >= _CUT_SHARE * np.count_nonzero(end)
+            cut[i, j] = np.count_nonzero(end & cut_edge) >= _CUT_SHARE * np.count_nonzero(end)
     return cut
 
 
@@ -960,20 +984,20 @@ def _initial_state(
     plane,
     symmetry: str,
     widen: float = 1.0,
-    border: np.ndarray | None = None,
+    cut_edge: np.ndarray | None = None,
 ) -> _State:
     """Amodal initial box for the rotation `R`: visible extents as lower bounds, prior aspect for the rest,
     grown away from the camera; bottom on the plane when one is given.
 
-    `border` (N,) marks the points on the image border (`_on_border`): a side the border cuts off
-    (`_cut_sides`) is not seen where it ends, so its axis takes its size from the prior's aspect scaled to
-    the uncut axes, and the box grows across the border there (the fit cannot tell: the prior's points
-    beyond the image do not pull)."""
+    `cut_edge` (N,) marks the points on the image border (`_on_border`) or an occluder's edge
+    (`_next_to_occluder`): a side they cut off (`_cut_sides`) is not seen where it ends, so its axis takes
+    its size from the prior's aspect scaled to the uncut axes, and the box grows across the cut there (the
+    fit cannot tell: the prior's points beyond the image or behind the occluder do not pull)."""
     local = pts @ R  # object-axis coordinates of the points (origin at the camera)
     lo = np.percentile(local, 2.0, axis=0)
     hi = np.percentile(local, 98.0, axis=0)
     ext = np.maximum(hi - lo, 1e-3)
-    cut = np.zeros((3, 2), dtype=bool) if border is None else _cut_sides(local, lo, hi, border)
+    cut = np.zeros((3, 2), dtype=bool) if cut_edge is None else _cut_sides(local, lo, hi, cut_edge)
     if plane is not None:
         normal, d = plane
         heights = pts @ normal + d
@@ -985,17 +1009,19 @@ def _initial_state(
     if symmetry in ("y_continuous", "spherical"):
         ext[0] = ext[2] = max(ext[0], ext[2])
         axis_cut[[0, 2]] = axis_cut[0] or axis_cut[2]  # one section width
-    # Scale of the prior's aspect that just covers the seen extents along the two best-seen uncut axes; an
-    # axis seen shorter than that (the depth direction) is grown to it, a cut one to the aspect itself.
+    # Scale of the prior's aspect that just covers the seen extents along the best-seen axes: the two best of
+    # an uncut box, and of a cut one its best uncut axis (besides the cut one, the third is the depth
+    # direction, seen shorter: an occluded mug seen as a sliver took its width from its depth). An axis seen
+    # shorter than that is grown to it, a cut one to the aspect itself.
     ratio = ext / aspect
     free = np.sort(ratio[~axis_cut]) if not axis_cut.all() else np.sort(ratio)
-    kappa = float(free[max(0, len(free) - 2)])
+    kappa = float(free[-1] if axis_cut.any() else free[1])
     size = np.maximum(ext, kappa * aspect * np.where(axis_cut, 1.0, 0.9))
     if symmetry in ("y_continuous", "spherical"):
         size[0] = size[2] = max(size[0], size[2])
     size[[0, 2]] *= widen
     centre_local = 0.5 * (lo + hi)
-    # grow the box away from the camera (the seen face stays where it is), or across the border that cuts it
+    # grow the box away from the camera (the seen face stays where it is), or across the cut
     view = pts.mean(axis=0) @ R  # camera -> object direction in object axes (unnormalised)
     direction = np.where(cut[:, 0] | cut[:, 1], cut[:, 1].astype(float) - cut[:, 0], np.sign(view))
     grow = size - ext
@@ -1328,14 +1354,22 @@ def fit_pose(
     shapes = (prior, *variants)
     problems: dict[tuple[int, int, int, bool, bool], _Problem] = {}
 
-    # Points on the image border: the sides they cut off take the prior's aspect (`_initial_state`), and the
-    # coarse stages, which rank hypotheses without the scene view, still know the image's bounds for them.
-    # A warm start has neither (its one stage has the whole scene view).
-    border = None if view is None or warm else _on_border(view.intrinsics, pts)
-    cut_by_image = border is not None and bool(np.any(border))
+    # Points where the silhouette is not the object's own end, on the image border or an occluder's edge: the
+    # sides they cut off take the prior's aspect (`_initial_state`). The coarse stages rank hypotheses
+    # without the scene view, unless an occluder cuts the object (its seen sliver alone fits a thin slab
+    # best: the right box lost the coarse ranking, dev split 29); for an object the border cuts they still
+    # know the image's bounds. A warm start has none of this (its one stage has the whole scene view).
+    cut_edge = None
+    cut_by_image = cut_by_occluder = False
+    if view is not None and not warm:
+        on_border = _on_border(view.intrinsics, pts)
+        by_occluder = _next_to_occluder(view, pts, cfg.occlusion_margin_m)
+        cut_by_image, cut_by_occluder = bool(np.any(on_border)), bool(np.any(by_occluder))
+        cut_edge = on_border | by_occluder
 
     def problem(k_shape: int, n_o: int, n_p: int, k_stage: int = len(cfg.stages) - 1) -> _Problem:
-        with_view = view is not None and k_stage >= len(cfg.stages) - cfg.occlusion_stages
+        late = k_stage >= len(cfg.stages) - cfg.occlusion_stages
+        with_view = view is not None and (late or cut_by_occluder)
         image_only = not with_view and cut_by_image
         key = (k_shape, n_o, n_p, with_view, image_only)
         pb = problems.get(key)
@@ -1386,7 +1420,7 @@ def fit_pose(
         # A round shape has one rotation hypothesis; its section is tried at a few widths instead, since
         # a narrower section closer to the camera is a local minimum of the visible-arc fit.
         widths = _ROUND_WIDTHS if sym in ("y_continuous", "spherical") and up is not None else (1.0,)
-        states = [_initial_state(pts, R, prior, up, plane, sym, w, border) for R in Rs for w in widths]
+        states = [_initial_state(pts, R, prior, up, plane, sym, w, cut_edge) for R in Rs for w in widths]
 
     # 3. optimise: coarse stage on all hypotheses, refinement of the best few
     total_iters = 0
@@ -1414,7 +1448,7 @@ def fit_pose(
                 for kv, shp in enumerate(variants, start=1):
                     pb = problem(kv, n_o, stage.prior_points, k)
                     it0 = pb.iterations
-                    st0 = _initial_state(pts, best_R, shp, up, plane, sym, border=border)
+                    st0 = _initial_state(pts, best_R, shp, up, plane, sym, cut_edge=cut_edge)
                     st2, cost = _optimise(pb, st0, stage.iterations)
                     total_iters += pb.iterations - it0
                     ranked.append((cost, st2, kv))
