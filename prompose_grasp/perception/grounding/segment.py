@@ -83,8 +83,10 @@ _RESPLIT_SPAN_M = 0.45
 
 #: A small segment with no geometric neighbour (a piece of a thin part: a mug's handle, whose depth the sensor
 #: loses in a band along each of its edges, arrives as fragments with no depth between them and the body)
-#: joins the nearest large segment within this distance [m]: a mug handle stands ~2 cm off its body.
+#: joins the nearest large segment within this distance [m] of at least `_FRAGMENT_NEAR_SHARE` of its cells:
+#: a handle's root is ~1-2 cm off its body (the lost band), its far side 3-5 cm.
 _FRAGMENT_JOIN_M = 0.025
+_FRAGMENT_NEAR_SHARE = 0.25
 
 #: ... when it stands at least this high above the support [m]: specks of table noise just past the height
 #: cut (8-10 mm) stay dropped.
@@ -283,9 +285,9 @@ def _attach_fragments(
     target: np.ndarray, compact: np.ndarray, alone: np.ndarray, P: np.ndarray, heights: np.ndarray
 ) -> None:
     """Point each segment of `alone` (small, no geometric neighbour) in `target` to a large segment, when at
-    least half of its cells stand `_FRAGMENT_MIN_HEIGHT_M` or more above the support within
-    `_FRAGMENT_JOIN_M` of a large segment in 3D: to the one most of those cells are nearest to (in place;
-    `compact`: each cell's segment, -1 for none)."""
+    least `_FRAGMENT_NEAR_SHARE` of its cells stand `_FRAGMENT_MIN_HEIGHT_M` or more above the support
+    within `_FRAGMENT_JOIN_M` of a large segment in 3D: to the one most of those cells are nearest to (in
+    place; `compact`: each cell's segment, -1 for none)."""
     large = ~alone & (target == np.arange(len(target)))
     cells = np.nonzero(compact >= 0)[0]
     seg = compact[cells]
@@ -301,8 +303,9 @@ def _attach_fragments(
     frag_seg = compact[frag_cells]
     for k in np.unique(frag_seg):
         mine = frag_seg == k
-        # most of the fragment within reach (its median cell), and joined to the segment most of it is near
-        if np.count_nonzero(near & mine) * 2 >= np.count_nonzero(compact == k):
+        # enough of the fragment within reach (a handle's root: the median cell of a handle reaching 3-4 cm
+        # off its body was 26-27 mm away, dev 29), joined to the segment most of those cells are near
+        if np.count_nonzero(near & mine) >= _FRAGMENT_NEAR_SHARE * np.count_nonzero(compact == k):
             owners = compact[big_cells[j[near & mine]]]
             target[k] = int(np.bincount(owners).argmax())
 
