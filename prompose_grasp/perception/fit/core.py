@@ -950,9 +950,10 @@ def _next_to_occluder(scene: SceneView, pts: np.ndarray, margin: float) -> np.nd
     theirs whose depth reading is nearer than the point by more than `margin`: the object's silhouette there
     is an occluder's edge, not the object's end."""
     intr = scene.intrinsics
-    u, v = np.rint(intr.project(pts)).astype(np.intp).T
-    u = np.clip(u, 0, intr.width - 1)
-    v = np.clip(v, 0, intr.height - 1)
+    ok, u, v = _pixels(intr, pts)
+    out = np.zeros(len(pts), dtype=bool)
+    if not np.any(ok):
+        return out
     r = _OCCLUDER_PX
     x0, x1 = max(0, int(u.min()) - r), min(intr.width, int(u.max()) + r + 1)
     y0, y1 = max(0, int(v.min()) - r), min(intr.height, int(v.max()) + r + 1)
@@ -960,7 +961,8 @@ def _next_to_occluder(scene: SceneView, pts: np.ndarray, margin: float) -> np.nd
     with np.errstate(invalid="ignore"):
         other = ~scene.mask[y0:y1, x0:x1] & (d > 0.0)  # NaN (no reading) compares False
     nearest = minimum_filter(np.where(other, d, np.inf), size=2 * r + 1, mode="constant", cval=np.inf)
-    return nearest[v - y0, u - x0] < pts[:, 2] - margin
+    out[ok] = nearest[v - y0, u - x0] < pts[ok, 2] - margin
+    return out
 
 
 def _cut_sides(local: np.ndarray, lo: np.ndarray, hi: np.ndarray, cut_edge: np.ndarray) -> np.ndarray:

@@ -76,6 +76,19 @@ def _refine(points: np.ndarray, inliers: np.ndarray) -> tuple[np.ndarray, float]
     return n, -float(n @ c)
 
 
+def _refit_in_band(
+    points: np.ndarray, n: np.ndarray, d: float, band: float | np.ndarray, rounds: int
+) -> tuple[np.ndarray, float] | None:
+    """The plane (n, d) refitted `rounds` times (`_refine`) on the points within `band` [m] of it (one
+    distance, or one per point); None when fewer than 3 points are in. The result's sign is `_refine`'s."""
+    for _ in range(rounds):
+        inliers = np.abs(points @ n + d) < band
+        if inliers.sum() < 3:
+            return None
+        n, d = _refine(points, inliers)
+    return n, d
+
+
 def _ransac_plane(
     points: np.ndarray, rng: np.random.Generator, config: GroundingConfig
 ) -> tuple[np.ndarray, float] | None:
@@ -95,12 +108,11 @@ def _ransac_plane(
     offsets = -np.einsum("ij,ij->i", normals, a[ok])
     counts = (np.abs(subset @ normals.T + offsets) < config.ransac_inlier_m).sum(axis=0)
     best = int(np.argmax(counts))
-    n, d = normals[best], float(offsets[best])
-    for _ in range(2):  # refit on the inliers, then once more on the refit's inliers
-        inliers = np.abs(points @ n + d) < config.ransac_inlier_m
-        if inliers.sum() < 3:
-            return None
-        n, d = _refine(points, inliers)
+    # refit on the inliers, then once more on the refit's inliers
+    refit = _refit_in_band(points, normals[best], float(offsets[best]), config.ransac_inlier_m, 2)
+    if refit is None:
+        return None
+    n, d = refit
     n = n / np.linalg.norm(n)
     if d < 0:  # the camera (origin) must be on the positive side: normal points "up" towards it
         n, d = -n, -d
@@ -237,16 +249,15 @@ def _noise_band_refit(points: np.ndarray, plane: SupportPlane, config: Grounding
     0.43 / 0.88 deg -> 0.03 / 0.04 deg). Only the chosen support is refitted: the candidates' ranking and
     the points each takes from the next are the fixed band's.
     """
-    n, d = plane.normal_cam, plane.offset_m
     band = np.clip(
         _NOISE_BAND_SIGMAS * config.sigma_m(points[:, 2]), _NOISE_BAND_MIN_M, config.ransac_inlier_m
     )
-    for _ in range(3):
-        inliers = np.abs(points @ n + d) < band
-        if inliers.sum() < 3:
-            return plane
-        n2, d2 = _refine(points, inliers)
-        n, d = (n2, d2) if n2 @ n >= 0.0 else (-n2, -d2)  # keep the normal on the camera's side
+    refit = _refit_in_band(points, plane.normal_cam, plane.offset_m, band, 3)
+    if refit is None:
+        return plane
+    n, d = refit
+    if n @ plane.normal_cam < 0.0:  # keep the normal on the camera's side
+        n, d = -n, -d
     return SupportPlane(
         normal_cam=n / np.linalg.norm(n), offset_m=float(d), inlier_fraction=plane.inlier_fraction
     )
