@@ -42,11 +42,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.ndimage import minimum_filter
 from scipy.spatial import cKDTree
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry.camera import CameraIntrinsics
+from prompose_grasp.geometry.occlusion import cut_ends, nearer_beside
 from prompose_grasp.geometry.pointcloud import farthest_point_sampling, robust_descriptor
 from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.geometry.se3 import project_to_so3, so3_exp
@@ -948,34 +948,18 @@ def _on_border(intr: CameraIntrinsics, pts: np.ndarray) -> np.ndarray:
 def _next_to_occluder(scene: SceneView, pts: np.ndarray, margin: float) -> np.ndarray:
     """(N,) bool: observed points `pts` (N, 3) with a pixel off the object's mask within `_OCCLUDER_PX` of
     theirs whose depth reading is nearer than the point by more than `margin`: the object's silhouette there
-    is an occluder's edge, not the object's end."""
-    intr = scene.intrinsics
-    ok, u, v = _pixels(intr, pts)
+    is an occluder's edge, not the object's end (`geometry.occlusion.nearer_beside`)."""
+    ok, u, v = _pixels(scene.intrinsics, pts)
     out = np.zeros(len(pts), dtype=bool)
-    if not np.any(ok):
-        return out
-    r = _OCCLUDER_PX
-    x0, x1 = max(0, int(u.min()) - r), min(intr.width, int(u.max()) + r + 1)
-    y0, y1 = max(0, int(v.min()) - r), min(intr.height, int(v.max()) + r + 1)
-    d = scene.depth_m[y0:y1, x0:x1]
-    with np.errstate(invalid="ignore"):
-        other = ~scene.mask[y0:y1, x0:x1] & (d > 0.0)  # NaN (no reading) compares False
-    nearest = minimum_filter(np.where(other, d, np.inf), size=2 * r + 1, mode="constant", cval=np.inf)
-    out[ok] = nearest[v - y0, u - x0] < pts[ok, 2] - margin
+    out[ok] = nearer_beside(scene.depth_m, scene.mask, v, u, pts[ok, 2], _OCCLUDER_PX, margin)
     return out
 
 
 def _cut_sides(local: np.ndarray, lo: np.ndarray, hi: np.ndarray, cut_edge: np.ndarray) -> np.ndarray:
     """(3, 2) bool: which sides (low, high) of each box axis the image border or an occluder cuts off
-    (`_CUT_SHARE`), from the points in box axes `local` (N, 3), their 2nd and 98th percentiles `lo`, `hi`
-    (3,) (the ends: the outer 2 % of the points) and which of them lie on a cut edge (`cut_edge`, (N,))."""
-    cut = np.zeros((3, 2), dtype=bool)
-    if not np.any(cut_edge):
-        return cut
-    for i in range(3):
-        for j, end in enumerate((local[:, i] <= lo[i], local[:, i] >= hi[i])):
-            cut[i, j] = np.count_nonzero(end & cut_edge) >= _CUT_SHARE * np.count_nonzero(end)
-    return cut
+    (`geometry.occlusion.cut_ends` with `_CUT_SHARE`), from the points in box axes `local` (N, 3), their 2nd
+    and 98th percentiles `lo`, `hi` (3,) and which of them lie on a cut edge (`cut_edge`, (N,))."""
+    return cut_ends(local, lo, hi, cut_edge, _CUT_SHARE)
 
 
 def _initial_state(
