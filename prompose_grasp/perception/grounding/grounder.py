@@ -22,6 +22,7 @@ from prompose_grasp.perception.grounding.describe import (
     handle_seen,
     shape_family,
     size_class,
+    taper,
     top_height_histogram,
 )
 from prompose_grasp.perception.grounding.language import ParsedPrompt, parse_prompt
@@ -202,6 +203,8 @@ class Grounder:
                     top_height_histogram(coords, t[1], extent[0]),
                     # the mesh seen all around, judged as a round thing: does the family carry a handle?
                     has_handle=handle_seen(coords, extent, "cylinder"),
+                    # judged as a candidate would be: only a family whose mesh reads round has a taper
+                    taper=taper(coords, extent, shape_family(coords, extent)),
                 )
         with self._priors_lock:
             self._noun_priors[noun] = out
@@ -249,13 +252,15 @@ class Grounder:
         size = size_class(extent)
         family = shape_family(coords, extent)
         tops = top_height_histogram(coords, float(extent[2]), float(extent[0]))
-        handle = False
+        handle, body_taper = False, float("nan")
         if frame is not None:  # without a plane there is no footprint to find a handle around
             # on the whole mask's grid points: a handle often joins its body's mask only when the mask is
             # grown at full resolution, after clustering (`segment_objects`), so not in `seg.points_cam`
             s = self.config.segment_stride_px
             grid = points_map[::s, ::s][seg.mask[::s, ::s]]
-            handle = handle_seen(frame.coords(grid[np.isfinite(grid[:, 2])]), extent, family)
+            grid_coords = frame.coords(grid[np.isfinite(grid[:, 2])])
+            handle = handle_seen(grid_coords, extent, family)
+            body_taper = taper(grid_coords, extent, family)
         attrs = CandidateAttributes(
             colour_name=colour,
             colour_rgb=colour_rgb,
@@ -267,6 +272,7 @@ class Grounder:
             description=describe_text(size, colour, family),
             top_height_histogram=tops,
             handle_seen=handle,
+            taper=body_taper,
         )
         return attrs, shares, xy
 
@@ -360,6 +366,7 @@ class Grounder:
             distance_m=np.array([float(np.linalg.norm(d[0].centroid_cam)) for d in described]),
             top_heights=np.stack([d[0].top_height_histogram for d in described]),
             handles=np.array([d[0].handle_seen for d in described], dtype=bool),
+            tapers=np.array([d[0].taper for d in described], dtype=np.float64),
         )
 
     def _prior_for(self, parsed: ParsedPrompt, has_plane: bool) -> NounPrior | None:

@@ -162,6 +162,8 @@ class CandidateAttributes:
             candidate seen from above, the highest point of each footprint cell as a fraction of the height,
             histogrammed (`describe.top_height_histogram`); a box is all "top", a laptop mostly "low".
         handle_seen: a round candidate shows a handle (`describe.handle_seen`): a mug, not a cup.
+        taper: log(r_upper / r_lower) of a round candidate's body (`describe.taper`): > 0 widening upwards
+            (a paper cup), NaN when not measured.
     """
 
     colour_name: str
@@ -174,6 +176,7 @@ class CandidateAttributes:
     description: str
     top_height_histogram: np.ndarray = field(default_factory=lambda: np.zeros(0))
     handle_seen: bool = False
+    taper: float = float("nan")
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "colour_rgb", _frozen(np.asarray(self.colour_rgb, dtype=np.uint8)))
