@@ -37,7 +37,12 @@ from prompose_grasp.perception.grounding.score import (
     metric_size_term,
     score_candidates,
 )
-from prompose_grasp.perception.grounding.segment import _attach_fragments, _shade_distance, concave_creases
+from prompose_grasp.perception.grounding.segment import (
+    _attach_fragments,
+    _join_hinged,
+    _shade_distance,
+    concave_creases,
+)
 from prompose_grasp.perception.priors import PriorLibrary
 from prompose_grasp.robot import RGBDFrame
 
@@ -424,6 +429,34 @@ def test_taper_term_takes_away_for_a_taper_unlike_the_nouns():
     box = NounPrior("box", 0.9, np.full(3, 0.1))
     for noun, prior in (("the bottle", bottle), ("the box", box)):
         assert np.ptp(score_candidates(parse_prompt(noun), f, None, noun_prior=prior)) == 0.0
+
+
+def _laptop_from_behind(gap: float, screen_ab: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Grid labels and points (in plane coordinates: right, forward, height) of a laptop seen from behind:
+    rows 0-9 the screen's back (30 cm wide, 3 cm of footprint, 21 cm tall) `gap` [m] behind the 8 cm strip of
+    its base the screen leaves in view (rows 10-19, 2 cm high); `screen_ab` the two segments' Lab (a, b)."""
+    x = np.linspace(0.0, 0.3, 30)
+    t = np.linspace(0.0, 1.0, 10)[:, None] * np.ones((1, 30))
+    screen = np.stack([np.broadcast_to(x, t.shape), gap + 0.08 + 0.03 * (1 - t), 0.21 * (1 - t)], -1)
+    base = np.stack([np.broadcast_to(x, t.shape), 0.08 * (1 - t), np.full(t.shape, 0.02)], -1)
+    labels = np.repeat([0, 1], 10)[:, None] * np.ones((1, 30), dtype=np.int64)
+    lab = np.zeros((20, 30, 3))
+    lab[:10] = (40.0, *screen_ab)
+    lab[10:] = (40.0, 30.0, -30.0)
+    return labels, np.concatenate([screen, base]), lab
+
+
+def test_a_screen_joins_its_base_across_the_strip_it_hides():
+    """Seen from behind and low, a laptop's screen hides its hinge and up to its height of the base (dev 29:
+    base strips 14-15 cm in front of 21-23 cm screens). Of one colour the two join up to the screen's height
+    apart; of two colours (a black screen on a red base) only within 12 cm (`_HINGE_GAP_M`), as before."""
+    same, other = (30.0, -30.0), (-30.0, 30.0)
+    cfg = GroundingConfig()
+    cases = ((0.14, same, True), (0.14, other, False), (0.10, other, True), (0.25, same, False))
+    for gap, ab, joined in cases:
+        labels, P, lab = _laptop_from_behind(gap, ab)
+        out = _join_hinged(labels, P, lambda q: q, lab, cfg)
+        assert (out.max() == 0) == joined, (gap, ab)
 
 
 @pytest.mark.parametrize(
