@@ -386,11 +386,11 @@ def _visible_frustum(r_bottom: float, r_top: float, h: float, centre: np.ndarray
 def test_taper_tells_a_widening_cup_from_a_straight_mug(sigma):
     """A paper cup (radius 2.8 cm at the foot, 4.2 cm at the rim, 10 cm tall) and a straight mug body (4 cm).
 
-    The cup's bands (10-40 % and 60-90 % of its height) hold radii of 2.94-3.36 and 3.64-4.06 cm, 3.15 and
-    3.85 cm in the middle: log(3.85 / 3.15) = 0.20 by construction. Noise-free, the bands share the axis of
-    a circle fitted to a half arc whose radius spreads over 1.1 cm, which moves it a little (up to 0.05 of
-    log radius). With 7 mm noise, the bounds are the development table's gap (mugs -0.02 to 0.03, cups
-    from 0.06).
+    The cup's bands (25-45 % and 65-90 % of its height) hold radii of 3.15-3.43 and 3.71-4.06 cm, 3.29 and
+    3.89 cm in the middle: log(3.885 / 3.29) = 0.166 by construction. Noise-free, the bands share the axis
+    of a circle fitted to a half arc whose radius spreads over 0.9 cm, which moves it a little (up to 0.03 of
+    log radius). With 7 mm noise, the bounds are the development table's gap (mugs -0.02 to 0.03, cups from
+    0.05).
     """
     for i in range(8):
         rng = np.random.default_rng(i)
@@ -400,12 +400,12 @@ def test_taper_tells_a_widening_cup_from_a_straight_mug(sigma):
         t_cup = taper(cup, _measured_extent(cup), "cylinder")
         t_mug = taper(mug, _measured_extent(mug), "cylinder")
         if sigma == 0.0:
-            assert t_cup == pytest.approx(math.log(0.0385 / 0.0315), abs=0.05), i
+            assert t_cup == pytest.approx(math.log(0.03885 / 0.0329), abs=0.03), i
             assert t_mug == pytest.approx(0.0, abs=0.01), i  # the ray denoising's 4 mm bins: ~1 mm of radius
-        assert t_cup > 0.12 and abs(t_mug) < 0.05, (i, t_cup, t_mug)
+        assert t_cup > 0.1 and abs(t_mug) < 0.05, (i, t_cup, t_mug)
         # not measured: a candidate that does not read round, or whose lower band is hidden (an occluder)
         assert math.isnan(taper(cup, _measured_extent(cup), "box"))
-        upper = cup[cup[:, 2] > 0.045]
+        upper = cup[cup[:, 2] > 0.05]
         assert math.isnan(taper(upper, _measured_extent(cup), "cylinder"))
 
 

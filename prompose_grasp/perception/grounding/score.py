@@ -56,15 +56,15 @@ once its handle stayed in its mask (docs/grounding.md, "Mug handles").
 
 Taper. A hidden-handle mug and a paper cup still look alike; what tells them apart is that the cup widens
 upwards (`describe.taper`: log of the upper band's radius over the lower's; development table: mugs -0.02 to
-0.03, cups 0.06 to 0.25, round-looking cameras -0.5 to -0.05). The term compares a round candidate's taper
-t_c with that of the noun's family mesh t_n (measured the same way, when the mesh reads round: cup 0.20,
-bowl 0.22, mug and can 0, jar -0.05): exp(-((t_c - t_n) / 0.08)^2 / 2) - 1. 0 alike, -0.04 for a mug's 0.025
-against a mug's 0, -0.38 for the least tapered cup's 0.055, -0.93 for a typical cup's 0.19. Sigma 0.08, not
+0.03, cups 0.05 to 0.21, round-looking cameras -0.48 to -0.03). The term compares a round candidate's taper
+t_c with that of the noun's family mesh t_n (measured the same way, when the mesh reads round: cup 0.17,
+bowl 0.16, mug and can 0, jar -0.08): exp(-((t_c - t_n) / 0.08)^2 / 2) - 1. 0 alike, -0.05 for a mug's 0.025
+against a mug's 0, -0.18 for the least tapered cup's 0.05, -0.85 for a typical cup's 0.16. Sigma 0.08, not
 the mugs' spread (0.02): a real mug may taper by 5-10 % of its radius (-0.39 at 0.08). It only takes away:
 standing straight does not make a candidate a mug (a can does), and a term that added for it lifted every
 straight thing over the hidden-handle mugs' scores. Nouns whose mesh narrows upwards by more than 0.1
-(bottle -0.22: its shoulder; camera -0.23: its hump) are not judged: where the narrowing falls varies (the
-generated bottles read -0.31 to -0.06). Unmeasured (not round, or a band hidden) gives 0.
+(bottle -0.27: its shoulder; camera -0.30: its hump) are not judged: where the narrowing falls varies (the
+generated bottles read -0.45 to -0.12). Unmeasured (not round, or a band hidden) gives 0.
 
 The returned score is sigmoid(2 (total - 1)): in (0, 1), monotone in the total, comparable within a prompt.
 """
