@@ -98,7 +98,8 @@ FAMILY_TEXTS: dict[str, str] = {
 
 @dataclass(frozen=True)
 class ScoringWeights:
-    """Weights of the score terms (module docstring); the `size_*_sigma` are log-normal widths."""
+    """Weights of the score terms (module docstring); the `size_*_sigma` are log-normal widths, `taper_sigma`
+    the taper term's width, `taper_judged_from` the least taper of a noun's mesh that the term judges."""
 
     semantic: float = 1.0
     colour: float = 1.5
