@@ -223,6 +223,7 @@ def _base_terms(
         total += w.top_heights * (2.0 * overlap - 1.0)
     if noun_prior is not None and feats.handles is not None:
         total += w.handle * np.where(feats.handles, 1.0 if noun_prior.has_handle else -1.0, 0.0)
+    # a noun whose mesh is not round has a NaN taper, which compares False: no term
     if noun_prior is not None and noun_prior.taper >= w.taper_judged_from and feats.tapers is not None:
         gap = np.nan_to_num(feats.tapers - noun_prior.taper)  # NaN: not measured, gap 0, term 0
         total += w.taper * (np.exp(-0.5 * (gap / w.taper_sigma) ** 2) - 1.0)
