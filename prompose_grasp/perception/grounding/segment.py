@@ -67,6 +67,11 @@ _HINGE_GAP_M = 0.12
 #: ... or, for a slab and a panel of one colour (`_shade_distance` under `colour_edge`), within the panel's
 #: height: from 45 deg of elevation the screen hides up to its height of the base (dev split 29: two laptops
 #: seen from behind and low showed a 5-8 cm strip of their base 14-15 cm in front of a 21-23 cm screen).
+#: A panel leaning back (a screen opened past 110 deg: 12-16 cm of footprint on dev split 29) is wider than
+#: `_HINGE_PANEL_MAX_W_M`, yet still flat: its points lie within this [m] of one plane (the 5-95 percentile
+#: spread along their least principal axis; a 5-9 mm screen plus the sensor's noise), and it stands taller
+#: than its footprint is wide (a lean under 45 deg).
+_HINGE_PANEL_MAX_T_M = 0.025
 
 #: A segment whose highest point comes within this of `max_height_m` [m] is cut off by it: a wall or a
 #: shelf, not an object (2 cm: the height cut's own noise at 1.5 m is under 1 cm).
@@ -425,20 +430,25 @@ def _shade_distance(c1: np.ndarray, c2: np.ndarray) -> float:
 
 def _footprints(
     labels: np.ndarray, Pg: np.ndarray, plane_coords
-) -> list[tuple[float, float, float, np.ndarray]]:
+) -> list[tuple[float, float, float, float, np.ndarray]]:
     """Per segment: footprint length and width [m] (minimum-area rectangle), height (98th percentile) [m],
-    and up to 400 (right, forward) footprint points (an even thinning)."""
+    thickness [m] (the 5-95 percentile spread of its points along their least principal axis: how far they
+    are from one plane), and up to 400 (right, forward) footprint points (an even thinning)."""
     out = []
     for k in range(int(labels.max()) + 1):
         pts = Pg[labels == k]
         pts = pts[np.isfinite(pts[:, 2])]
         if len(pts) < 3:
-            out.append((0.0, 0.0, 0.0, np.zeros((0, 2))))
+            out.append((0.0, 0.0, 0.0, 0.0, np.zeros((0, 2))))
             continue
         c = plane_coords(pts)
         xy = c[:, :2].astype(np.float32)
         a, b = sorted(cv2.minAreaRect(xy)[1], reverse=True)
-        out.append((float(a), float(b), float(np.percentile(c[:, 2], 98)), xy[:: max(1, len(xy) // 400)]))
+        centred = c - c.mean(axis=0)
+        least = np.linalg.eigh(centred.T @ centred)[1][:, 0]
+        thickness = float(np.subtract(*np.percentile(centred @ least, [95, 5])))
+        height = float(np.percentile(c[:, 2], 98))
+        out.append((float(a), float(b), height, thickness, xy[:: max(1, len(xy) // 400)]))
     return out
 
 
@@ -453,7 +463,8 @@ def _join_hinged(
     when the pair is adjacent in the image (`_ADJACENT_CELLS`), one is flat (height under
     `_HINGE_SLAB_MAX_H_M`), the other a panel (footprint width under `_HINGE_PANEL_MAX_W_M` and height
     over 2.5 times that), the two footprints are about as long (ratio 0.7-1.4) and come within
-    `_HINGE_GAP_M`, or within the panel's height when the two are of one colour.
+    `_HINGE_GAP_M`, or within the panel's height when the two are of one colour. A panel leaning back is
+    wider but flat: thinner than `_HINGE_PANEL_MAX_T_M` and taller than wide.
     """
     K = int(labels.max()) + 1
     if K < 2:
@@ -465,11 +476,13 @@ def _join_hinged(
     parent = np.arange(K)
     for a, b in sorted(pairs):
         for slab, panel in ((a, b), (b, a)):
-            la, _, ha, pa = feet[slab]
-            lb, wb, hb, pb = feet[panel]
+            la, _, ha, _, pa = feet[slab]
+            lb, wb, hb, tb, pb = feet[panel]
             if not (len(pa) and len(pb)) or parent[slab] != slab or parent[panel] != panel:
                 continue
-            if ha >= _HINGE_SLAB_MAX_H_M or wb >= _HINGE_PANEL_MAX_W_M or hb <= 2.5 * wb:
+            upright = wb < _HINGE_PANEL_MAX_W_M and hb > 2.5 * wb
+            leaning = tb < _HINGE_PANEL_MAX_T_M and hb > wb
+            if ha >= _HINGE_SLAB_MAX_H_M or not (upright or leaning):
                 continue
             if not 0.7 <= lb / max(la, 1e-6) <= 1.4:
                 continue
