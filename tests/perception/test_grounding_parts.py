@@ -488,8 +488,9 @@ def test_a_screen_joins_its_base_across_the_strip_it_hides():
 
 def test_a_screen_leaning_back_joins_its_base_and_a_box_does_not():
     """A screen opened past 110 deg leans back: 13 cm of footprint, wider than an upright panel's 9 cm
-    (dev 29: 11-15 cm screens stayed apart from their bases), but its points lie on one plane, so it joins.
-    A box's front and top seen together (one colour, as wide and as tall) are not flat and stay apart."""
+    (dev 29: 11-15 cm screens stayed apart from their bases), but its points lie on one steep plane, so it
+    joins. A box's front and top seen together (one colour, as wide and as tall) are not flat, and its top
+    seen alone is flat but level (dev 28: a carton's top joined a laptop's base): both stay apart."""
     cfg = GroundingConfig()
     labels, P, lab = _laptop_from_behind(0.10, (30.0, -30.0), lean_m=0.13)
     assert _join_hinged(labels, P, lambda q: q, lab, cfg).max() == 0
@@ -500,6 +501,10 @@ def test_a_screen_leaning_back_joins_its_base_and_a_box_does_not():
     box[5:10, :, 1] = 0.18
     box[5:10, :, 2] = 0.21 * np.linspace(0.8, 0.0, 5)[:, None]
     assert _join_hinged(labels, box, lambda q: q, lab, cfg).max() == 1
+    box_top = P.copy()
+    box_top[:10, :, 1] = 0.18 + np.linspace(0.13, 0.0, 10)[:, None]
+    box_top[:10, :, 2] = 0.21
+    assert _join_hinged(labels, box_top, lambda q: q, lab, cfg).max() == 1
 
 
 @pytest.mark.parametrize(

@@ -12,6 +12,7 @@ around it whose colour matches it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -67,11 +68,13 @@ _HINGE_GAP_M = 0.12
 #: ... or, for a slab and a panel of one colour (`_shade_distance` under `colour_edge`), within the panel's
 #: height: from 45 deg of elevation the screen hides up to its height of the base (dev split 29: two laptops
 #: seen from behind and low showed a 5-8 cm strip of their base 14-15 cm in front of a 21-23 cm screen).
-#: A panel leaning back (a screen opened past 110 deg: 12-16 cm of footprint on dev split 29) is wider than
+#: A panel leaning back (a screen opened past 110 deg: 11-15 cm of footprint on dev split 29) is wider than
 #: `_HINGE_PANEL_MAX_W_M`, yet still flat: its points lie within this [m] of one plane (the 5-95 percentile
-#: spread along their least principal axis; a 5-9 mm screen plus the sensor's noise), and it stands taller
-#: than its footprint is wide (a lean under 45 deg).
+#: spread along their least principal axis; a 5-9 mm screen plus the sensor's noise) ...
 _HINGE_PANEL_MAX_T_M = 0.025
+#: ... and that plane is steep: its normal's vertical component under this (a lean under 45 deg; a box's
+#: top face, as flat, is horizontal: 1).
+_HINGE_PANEL_MAX_NORMAL_UP = 0.7
 
 #: A segment whose highest point comes within this of `max_height_m` [m] is cut off by it: a wall or a
 #: shelf, not an object (2 cm: the height cut's own noise at 1.5 m is under 1 cm).
@@ -428,18 +431,25 @@ def _shade_distance(c1: np.ndarray, c2: np.ndarray) -> float:
     return min(n1, n2) * float(np.sin(np.radians(angle)))
 
 
-def _footprints(
-    labels: np.ndarray, Pg: np.ndarray, plane_coords
-) -> list[tuple[float, float, float, float, np.ndarray]]:
-    """Per segment: footprint length and width [m] (minimum-area rectangle), height (98th percentile) [m],
-    thickness [m] (the 5-95 percentile spread of its points along their least principal axis: how far they
-    are from one plane), and up to 400 (right, forward) footprint points (an even thinning)."""
+class _Footprint(NamedTuple):
+    """A segment's shape on the support plane (`_footprints`)."""
+
+    length: float  # [m] the longer side of the minimum-area rectangle of its points on the plane
+    width: float  # [m] its shorter side
+    height: float  # [m] 98th percentile of the points' heights
+    thickness: float  # [m] 5-95 percentile spread along the points' least principal axis (0: one plane)
+    normal_up: float  # |vertical component| of that axis: 1 for a horizontal plane, 0 for an upright one
+    points: np.ndarray  # up to 400 (right, forward) footprint points (an even thinning)
+
+
+def _footprints(labels: np.ndarray, Pg: np.ndarray, plane_coords) -> list[_Footprint]:
+    """Per segment label 0..K-1: its `_Footprint`."""
     out = []
     for k in range(int(labels.max()) + 1):
         pts = Pg[labels == k]
         pts = pts[np.isfinite(pts[:, 2])]
         if len(pts) < 3:
-            out.append((0.0, 0.0, 0.0, 0.0, np.zeros((0, 2))))
+            out.append(_Footprint(0.0, 0.0, 0.0, 0.0, 0.0, np.zeros((0, 2))))
             continue
         c = plane_coords(pts)
         xy = c[:, :2].astype(np.float32)
@@ -448,7 +458,11 @@ def _footprints(
         least = np.linalg.eigh(centred.T @ centred)[1][:, 0]
         thickness = float(np.subtract(*np.percentile(centred @ least, [95, 5])))
         height = float(np.percentile(c[:, 2], 98))
-        out.append((float(a), float(b), height, thickness, xy[:: max(1, len(xy) // 400)]))
+        out.append(
+            _Footprint(
+                float(a), float(b), height, thickness, abs(float(least[2])), xy[:: max(1, len(xy) // 400)]
+            )
+        )
     return out
 
 
@@ -464,7 +478,7 @@ def _join_hinged(
     `_HINGE_SLAB_MAX_H_M`), the other a panel (footprint width under `_HINGE_PANEL_MAX_W_M` and height
     over 2.5 times that), the two footprints are about as long (ratio 0.7-1.4) and come within
     `_HINGE_GAP_M`, or within the panel's height when the two are of one colour. A panel leaning back is
-    wider but flat: thinner than `_HINGE_PANEL_MAX_T_M` and taller than wide.
+    wider, but flat (thinner than `_HINGE_PANEL_MAX_T_M`) and steep (`_HINGE_PANEL_MAX_NORMAL_UP`).
     """
     K = int(labels.max()) + 1
     if K < 2:
@@ -476,21 +490,20 @@ def _join_hinged(
     parent = np.arange(K)
     for a, b in sorted(pairs):
         for slab, panel in ((a, b), (b, a)):
-            la, _, ha, _, pa = feet[slab]
-            lb, wb, hb, tb, pb = feet[panel]
-            if not (len(pa) and len(pb)) or parent[slab] != slab or parent[panel] != panel:
+            fa, fb = feet[slab], feet[panel]
+            if not (len(fa.points) and len(fb.points)) or parent[slab] != slab or parent[panel] != panel:
                 continue
-            upright = wb < _HINGE_PANEL_MAX_W_M and hb > 2.5 * wb
-            leaning = tb < _HINGE_PANEL_MAX_T_M and hb > wb
-            if ha >= _HINGE_SLAB_MAX_H_M or not (upright or leaning):
+            upright = fb.width < _HINGE_PANEL_MAX_W_M and fb.height > 2.5 * fb.width
+            leaning = fb.thickness < _HINGE_PANEL_MAX_T_M and fb.normal_up < _HINGE_PANEL_MAX_NORMAL_UP
+            if fa.height >= _HINGE_SLAB_MAX_H_M or not (upright or leaning):
                 continue
-            if not 0.7 <= lb / max(la, 1e-6) <= 1.4:
+            if not 0.7 <= fb.length / max(fa.length, 1e-6) <= 1.4:
                 continue
             gap = _HINGE_GAP_M
             chroma = [np.median(lab_g[labels == k][:, 1:], axis=0) for k in (slab, panel)]
             if _shade_distance(*chroma) < config.colour_edge:
-                gap = max(gap, hb)
-            d, _ = cKDTree(pa).query(pb, k=1, distance_upper_bound=gap)
+                gap = max(gap, fb.height)
+            d, _ = cKDTree(fa.points).query(fb.points, k=1, distance_upper_bound=gap)
             if np.min(d) < gap:
                 parent[panel] = slab
     if np.all(parent == np.arange(K)):
