@@ -66,13 +66,6 @@ _NOISE_BAND_SIGMAS = 2.5
 _NOISE_BAND_MIN_M = 0.004
 
 
-def _noise_band(points: np.ndarray, config: GroundingConfig) -> np.ndarray:
-    """(N,) each point's inlier band [m]: `_NOISE_BAND_SIGMAS` sigma(z) of the sensor's noise, clipped to
-    [`_NOISE_BAND_MIN_M`, `ransac_inlier_m`]."""
-    band = _NOISE_BAND_SIGMAS * config.sigma_m(points[:, 2])
-    return np.clip(band, _NOISE_BAND_MIN_M, config.ransac_inlier_m)
-
-
 def _refine(points: np.ndarray, inliers: np.ndarray) -> tuple[np.ndarray, float]:
     """Least-squares plane (total least squares: smallest principal axis) through the inlier points."""
     P = points[inliers]
@@ -113,10 +106,10 @@ def _ransac_plane(
         return None
     normals = normals[ok] / norms[ok, None]
     offsets = -np.einsum("ij,ij->i", normals, a[ok])
-    counts = (np.abs(subset @ normals.T + offsets) < _noise_band(subset, config)[:, None]).sum(axis=0)
+    counts = (np.abs(subset @ normals.T + offsets) < config.ransac_inlier_m).sum(axis=0)
     best = int(np.argmax(counts))
     # refit on the inliers, then once more on the refit's inliers
-    refit = _refit_in_band(points, normals[best], float(offsets[best]), _noise_band(points, config), 2)
+    refit = _refit_in_band(points, normals[best], float(offsets[best]), config.ransac_inlier_m, 2)
     if refit is None:
         return None
     n, d = refit
@@ -256,7 +249,10 @@ def _noise_band_refit(points: np.ndarray, plane: SupportPlane, config: Grounding
     0.43 / 0.88 deg -> 0.03 / 0.04 deg). Only the chosen support is refitted: the candidates' ranking and
     the points each takes from the next are the fixed band's.
     """
-    refit = _refit_in_band(points, plane.normal_cam, plane.offset_m, _noise_band(points, config), 3)
+    band = np.clip(
+        _NOISE_BAND_SIGMAS * config.sigma_m(points[:, 2]), _NOISE_BAND_MIN_M, config.ransac_inlier_m
+    )
+    refit = _refit_in_band(points, plane.normal_cam, plane.offset_m, band, 3)
     if refit is None:
         return plane
     n, d = refit
