@@ -103,6 +103,12 @@ _FRAGMENT_NEAR_SHARE = 0.25
 #: cut (8-10 mm) stay dropped.
 _FRAGMENT_MIN_HEIGHT_M = 0.02
 
+#: Small pieces that join nothing (`_attach_fragments`) chain to each other within this distance [m]; a chain
+#: of at least the minimum segment size is a segment. A laptop screen seen edge-on has depth only in pieces of
+#: 1-7 grid cells, 1-2 cm apart along its 20 cm of height (dev 28 scene 122): each alone is too small and
+#: too far from the base to join it, so the candidate was the base alone, a "flat" object.
+_PIECE_CHAIN_M = 0.025
+
 #: Without a support plane, segments bigger than this share of the valid pixels are background (walls, floor).
 _MAX_BACKGROUND_SHARE = 0.25
 
@@ -274,12 +280,14 @@ def _merge_small(
             pu = pu[order]
             first = np.r_[True, pu[1:, 0] != pu[:-1, 0]]
             target[pu[first, 0]] = pu[first, 1]
+    chained = np.zeros(len(uniq), dtype=bool)
     if points is not None and heights is not None:
         alone = small & (target == np.arange(len(uniq)))
         _attach_fragments(target, compact, alone, points.reshape(-1, 3), heights.ravel())
         joined = alone & (target != np.arange(len(uniq)))
         attached = (fg & joined[np.maximum(compact, 0)]).reshape(labels.shape)
-    keep = ~small | (target != np.arange(len(uniq)))
+        chained = _chain_pieces(target, compact, alone & ~joined, counts, min_cells, points, heights)
+    keep = ~small | (target != np.arange(len(uniq))) | chained
     target = np.where(keep, target, -1)
     out = np.where(fg, target[np.maximum(compact, 0)], -1)
     # relabel to 0..K-1 in order of first appearance (raster order: deterministic)
@@ -319,6 +327,43 @@ def _attach_fragments(
         if np.count_nonzero(near & mine) >= _FRAGMENT_NEAR_SHARE * np.count_nonzero(compact == k):
             owners = compact[big_cells[j[near & mine]]]
             target[k] = int(np.bincount(owners).argmax())
+
+
+def _chain_pieces(
+    target: np.ndarray,
+    compact: np.ndarray,
+    pieces: np.ndarray,
+    counts: np.ndarray,
+    min_cells: int,
+    points: np.ndarray,
+    heights: np.ndarray,
+) -> np.ndarray:
+    """Chain the small segments of `pieces` (bool per segment) whose cells standing `_FRAGMENT_MIN_HEIGHT_M`
+    or more above the support come within `_PIECE_CHAIN_M` of each other; a chain of `min_cells` or more
+    cells becomes one segment (in place: `target` of its pieces points to its first piece). Returns the
+    bool per segment of those first pieces (kept, though small)."""
+    roots = np.zeros(len(target), dtype=bool)
+    cells = np.nonzero((compact >= 0) & (heights.ravel() >= _FRAGMENT_MIN_HEIGHT_M))[0]
+    cells = cells[pieces[compact[cells]]]
+    if len(cells) < 2 or counts[pieces].sum() < min_cells:
+        return roots
+    links = cKDTree(points.reshape(-1, 3)[cells]).query_pairs(_PIECE_CHAIN_M, output_type="ndarray")
+    if not len(links):
+        return roots
+    seg = compact[cells]
+    n = len(target)
+    graph = coo_matrix(
+        (np.ones(len(links), dtype=np.int8), (seg[links[:, 0]], seg[links[:, 1]])), shape=(n, n)
+    )
+    _, chain = connected_components(graph, directed=False)
+    members = np.unique(seg)
+    size = np.bincount(chain[members], weights=counts[members], minlength=n)
+    for c in np.unique(chain[members]):
+        mine = members[chain[members] == c]
+        if len(mine) > 1 and size[c] >= min_cells:
+            target[mine] = mine[0]
+            roots[mine[0]] = True
+    return roots
 
 
 def _adjacent_pairs(labels: np.ndarray) -> set[tuple[int, int]]:
