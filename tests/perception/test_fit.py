@@ -36,7 +36,12 @@ from prompose_grasp.perception.fit.core import (
 )
 from prompose_grasp.perception.grounding import Grounder, SupportPlane
 from prompose_grasp.perception.priors import PriorLibrary
-from prompose_grasp.perception.priors.library import articulated_variants, round_body_axis
+from prompose_grasp.perception.priors.library import (
+    articulated_variants,
+    aspect_weight_factors,
+    round_body_axis,
+)
+from prompose_grasp.perception.priors.prior import make_prior
 from prompose_grasp.perception.tracker import Tracker
 from prompose_grasp.robot import RGBDFrame
 
@@ -306,6 +311,42 @@ def test_wide_open_laptop_is_fitted_by_an_articulated_variant(library: PriorLibr
     plain = fit_pose(pts, prior, FitConfig(articulations=False), support_plane_cam=plane)
     assert plain.prior is prior
     assert plain.pose.iou(gt) < result.pose.iou(gt)
+
+
+def test_a_laptops_base_depth_follows_its_screen_height(library: PriorLibrary) -> None:
+    # A laptop's screen folds onto its base, so the family holds the y:z pair (screen height : base depth)
+    # firmer than the other pairs (`ShapeFamily.aspect_weight_factors`); a prior of no family holds none.
+    prior = library.family_prior("laptop")
+    for p in (prior, *articulated_variants(prior)):
+        factors = aspect_weight_factors(p)
+        assert factors[1] > 1.0 and factors[0] == factors[2] == 1.0
+    assert aspect_weight_factors(library.family_prior("bottle")).tolist() == [1.0, 1.0, 1.0]
+    user = make_prior(
+        trimesh.creation.box([0.3, 0.2, 0.25]),
+        name="laptop",
+        source="user:cad.stl",
+        symmetry="none",
+        n_points=500,
+    )
+    assert aspect_weight_factors(user).tolist() == [1.0, 1.0, 1.0]
+    # An instance whose base is 25 % shallower than its screen is tall (no real laptop), seen from behind its
+    # screen: held firm, the fit keeps the family's y:z and leaves the width, which the points show, alone.
+    rng = np.random.default_rng(1)
+    gt, pts, _, plane = _upright_scene(prior, rng, yaw=math.pi, elevation_deg=28.0)
+    size = prior.typical_size_m * np.array([1.0, 1.0, 0.75])
+    gt = Pose9D(gt.R, gt.t + 0.5 * (size[1] - gt.size[1]) * gt.R[:, 1], size)
+    pts_u, nrm_u = _dense_surface(prior, 30000, 1)
+    pts = gt.points_to_camera(pts_u)
+    pts = pts[np.einsum("ij,ij->i", (nrm_u / size) @ gt.R.T, pts) < 0.0]
+    pts = _ray_noise(pts[_zbuffer_visible(pts)], rng)
+    plane = np.array([*gt.R[:, 1], -float(gt.R[:, 1] @ (gt.t - 0.5 * size[1] * gt.R[:, 1]))])
+    held = fit_pose(pts, prior, support_plane_cam=plane).pose
+    loose = fit_pose(pts, prior, FitConfig(aspect_weight=0.0003), support_plane_cam=plane).pose
+    family_yz = prior.aspect[1] / prior.aspect[2]
+    off = [abs(math.log(p.size[1] / p.size[2] / family_yz)) for p in (held, loose)]
+    assert off[0] < 0.5 * off[1]  # held firm: at most half the log-ratio error of the loose fit
+    for p in (held, loose):  # 3 %: the width is seen whole, end to end
+        assert p.size[0] == pytest.approx(size[0], rel=0.03)
 
 
 def test_normal_equations_match_an_explicit_jacobian() -> None:

@@ -50,7 +50,11 @@ from prompose_grasp.geometry.occlusion import cut_ends, nearer_beside
 from prompose_grasp.geometry.pointcloud import farthest_point_sampling, robust_descriptor
 from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.geometry.se3 import project_to_so3, so3_exp
-from prompose_grasp.perception.priors.library import articulated_variants, round_body_axis
+from prompose_grasp.perception.priors.library import (
+    articulated_variants,
+    aspect_weight_factors,
+    round_body_axis,
+)
 from prompose_grasp.perception.priors.prior import SYMMETRIES, ShapePrior
 
 __all__ = [
@@ -556,6 +560,9 @@ class _Problem:
     round_section: bool = False
     # `scene` is used for its image bounds only (coarse stages of an object the image border cuts off)
     scene_image_only: bool = False
+    # per extent pair (x:y, y:z, x:z), `config.aspect_weight` times the prior's family's factors
+    # (`ShapeFamily.aspect_weight_factors`)
+    aspect_factors: np.ndarray = field(default_factory=lambda: np.ones(3))
 
     def centre(self, st: _State) -> np.ndarray:
         if self.plane is None:
@@ -839,7 +846,7 @@ _PAIRS = np.array([[0, 1], [1, 2], [0, 2]])
 
 
 def _aspect_residuals(pb: _Problem, log_s: np.ndarray) -> np.ndarray:
-    w = pb.config.aspect_weight
+    w = pb.config.aspect_weight * pb.aspect_factors
     diff = log_s[_PAIRS[:, 0]] - log_s[_PAIRS[:, 1]]
     target = pb.log_aspect[_PAIRS[:, 0]] - pb.log_aspect[_PAIRS[:, 1]]
     return w * (diff - target)
@@ -849,7 +856,7 @@ def _aspect_jacobian(pb: _Problem) -> np.ndarray:
     J = np.zeros((3, 3))
     J[np.arange(3), _PAIRS[:, 0]] = 1.0
     J[np.arange(3), _PAIRS[:, 1]] = -1.0
-    return pb.config.aspect_weight * J
+    return pb.config.aspect_weight * pb.aspect_factors[:, None] * J
 
 
 def _rotvec_matrix(w: np.ndarray) -> np.ndarray:
@@ -1366,7 +1373,7 @@ def fit_pose(
             tree = next((q.obs_tree for (_, m, *_), q in problems.items() if m == n_o), None)
             pb = _Problem(o, tree or cKDTree(o), pp, pn, up, plane, basis, np.log(shp.aspect), cfg,
                           view if with_view or image_only else None, round_section=sym == "y_continuous",
-                          scene_image_only=image_only)  # fmt: skip
+                          scene_image_only=image_only, aspect_factors=aspect_weight_factors(shp))  # fmt: skip
             problems[key] = pb
         return pb
 

@@ -201,6 +201,18 @@ def round_body_axis(prior: ShapePrior) -> np.ndarray | None:
     return axis
 
 
+def aspect_weight_factors(prior: ShapePrior) -> np.ndarray:
+    """(3,) the prior's family's `ShapeFamily.aspect_weight_factors` for the extent pairs (x:y, y:z, x:z),
+    its articulated variants' too; ones for a prior of no library family (a user's mesh, a superquadric)."""
+    if not isinstance(prior, ShapePrior):
+        raise InvalidInputError(f"prior must be a ShapePrior, got {type(prior).__name__}")
+    family = FAMILIES.get(prior.name)
+    own = f"library:{prior.name}"
+    if family is None or not (prior.source == own or prior.source.startswith(own + ":")):
+        return np.ones(3)
+    return np.asarray(family.aspect_weight_factors, dtype=np.float64)
+
+
 class PriorLibrary:
     """Text-retrieved canonical shape priors from parametric families, with a superquadric fallback.
 
