@@ -133,7 +133,9 @@ class FitConfig:
             sensors return nothing at grazing angles (edge dropout), so near-silhouette prior points would
             pull the box smaller.
         aspect_weight: weight of the log-aspect prior [m per unit log-ratio]; small, so that it decides only
-            sizes the observation leaves free (the unseen depth).
+            sizes the observation leaves free (the unseen depth). A library family whose function ties a
+            pair of extents multiplies it for that pair (`ShapeFamily.aspect_weight_factors`: a laptop's
+            screen height and base depth, 10x).
         stages: coarse-to-fine schedule of a cold start: every hypothesis runs the first stage; after each
             stage the `keep` lowest-loss ones go on to the next, finer one.
         warm_prior_points, warm_iterations: prior points and iterations of a warm start.
