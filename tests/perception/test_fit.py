@@ -332,9 +332,9 @@ def test_a_laptops_base_depth_follows_its_screen_height(library: PriorLibrary) -
     # An instance whose base is 25 % shallower than its screen is tall (no real laptop), seen from behind its
     # screen: held firm, the fit keeps the family's y:z and leaves the width, which the points show, alone.
     rng = np.random.default_rng(1)
-    gt, pts, _, plane = _upright_scene(prior, rng, yaw=math.pi, elevation_deg=28.0)
+    view, _, _, _ = _upright_scene(prior, rng, yaw=math.pi, elevation_deg=28.0)  # its pose, resized below
     size = prior.typical_size_m * np.array([1.0, 1.0, 0.75])
-    gt = Pose9D(gt.R, gt.t + 0.5 * (size[1] - gt.size[1]) * gt.R[:, 1], size)
+    gt = Pose9D(view.R, view.t + 0.5 * (size[1] - view.size[1]) * view.R[:, 1], size)  # same bottom
     pts_u, nrm_u = _dense_surface(prior, 30000, 1)
     pts = gt.points_to_camera(pts_u)
     pts = pts[np.einsum("ij,ij->i", (nrm_u / size) @ gt.R.T, pts) < 0.0]
