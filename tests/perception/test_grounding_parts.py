@@ -42,6 +42,7 @@ from prompose_grasp.perception.grounding.segment import (
     _chain_pieces,
     _join_hinged,
     _shade_distance,
+    _thin_parts,
     concave_creases,
 )
 from prompose_grasp.perception.priors import PriorLibrary
@@ -195,6 +196,32 @@ def test_an_edge_on_screens_pieces_chain_into_one_segment_and_scattered_specks_d
     roots = _chain_pieces(target, compact, np.ones(26, bool), counts, 30, P, heights)
     assert roots.tolist() == [True] + [False] * 25  # the screen's 39 cells reach 30; the short chain's 9 not
     assert target.tolist() == [0] * 13 + list(range(13, 26))
+
+
+def test_a_thin_base_under_the_height_cut_joins_what_stands_above_it_and_the_table_does_not():
+    """A laptop's 12-22 mm base at 1 m is under the height cut (2.5 sigma = 11.7 mm there) in about half its
+    cells: the cells 1.5 sigma up (7 mm) that are not of the table's colour and touch a cell above the cut
+    count as above it. The same height in the table's colour, or apart from anything above the cut, does not."""
+    h, w = 40, 40
+    height = np.zeros((h, w))
+    height[10:20, 10:20] = 0.10  # a box above the cut
+    height[10:20, 20:30] = 0.009  # a thin base beside it, under the cut, of another colour
+    height[20:30, 10:20] = 0.009  # as thin, beside the box, of the table's colour
+    height[30:38, 30:38] = 0.009  # as thin, of another colour, touching nothing above the cut
+    xs, ys = np.meshgrid(np.arange(w) * 0.005, np.arange(h) * 0.005)
+    Pg = np.stack([xs, ys, 1.0 - height], axis=-1)  # looking straight down from 1 m
+    plane = SupportPlane(np.array([0.0, 0.0, -1.0]), 1.0, 1.0)
+    lab = np.zeros((h, w, 3), np.float32)
+    lab[..., 0] = 120.0  # the table's colour
+    lab[10:20, 10:30, 1] = 40.0  # box and base: 40 Lab units off, over the 28 of `colour_edge`
+    lab[30:38, 30:38, 1] = 40.0
+    fg = height > 0.05
+    cfg = GroundingConfig()
+    assert 0.009 < cfg.height_sigmas * cfg.sigma_m(1.0)  # the base is under the full cut here
+    out = _thin_parts(fg, Pg, lab, plane, cfg)
+    expected = fg.copy()
+    expected[10:20, 20:30] = True
+    np.testing.assert_array_equal(out, expected)
 
 
 def test_colour_names_of_pure_and_shaded_colours():
