@@ -201,7 +201,8 @@ def test_an_edge_on_screens_pieces_chain_into_one_segment_and_scattered_specks_d
 def test_a_thin_base_under_the_height_cut_joins_what_stands_above_it_and_the_table_does_not():
     """A laptop's 12-22 mm base at 1 m is under the height cut (2.5 sigma = 11.7 mm there) in about half its
     cells: the cells 1.5 sigma up (7 mm) that are not of the table's colour and touch a cell above the cut
-    count as above it. The same height in the table's colour, or apart from anything above the cut, does not."""
+    count as above it. The same height in the table's colour, or apart from anything above the cut, does
+    not."""
     h, w = 40, 40
     height = np.zeros((h, w))
     height[10:20, 10:20] = 0.10  # a box above the cut
