@@ -175,7 +175,9 @@ def _thin_parts(
         low = valid & ~fg & (h > np.maximum(_THIN_MIN_M, _THIN_SIGMAS * sigma)) & (h < config.max_height_m)
     if not np.any(low) or np.count_nonzero(support) < 10:
         return fg
-    low &= _colour_distance(lab_g, np.median(lab_g[support], axis=0)) >= config.colour_edge
+    table = lab_g[support]
+    ref = np.median(table[:: max(1, len(table) // 4000)], axis=0)  # 4000 cells pin a median
+    low[low] = _colour_distance(lab_g[low], ref) >= config.colour_edge  # only the candidates' colours
     _, comp = cv2.connectedComponents((fg | low).view(np.uint8), connectivity=4)
     seeded = np.zeros(int(comp.max()) + 1, dtype=bool)
     seeded[comp[fg]] = True
