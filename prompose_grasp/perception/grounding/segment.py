@@ -712,10 +712,8 @@ def segment_objects(
     small_rgb = cv2.resize(rgb[: h * s, : w * s], (w, h), interpolation=cv2.INTER_AREA) if s > 1 else rgb
     lab_g = lab_image(small_rgb[:h, :w])
     fg = _above(Pg, plane, config)
-    thin = np.zeros_like(fg)
     if plane is not None:
-        with_thin = _thin_parts(fg, Pg, lab_g, plane, config)
-        thin, fg = with_thin & ~fg, with_thin
+        fg = _thin_parts(fg, Pg, lab_g, plane, config)
     labels, geo = _grid_labels(Pg, lab_g, fg, f_px, s, config)
     min_cells = max(1, int(np.ceil(config.min_segment_px / (s * s))))
     heights = None
@@ -758,7 +756,6 @@ def segment_objects(
     rows = np.minimum(np.arange(H) // s, h - 1)
     cols = np.minimum(np.arange(W) // s, w - 1)
     lab_full = labels[np.ix_(rows, cols)]
-    thin_full = thin[np.ix_(rows, cols)]
     background_full = background[np.ix_(rows, cols)]
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * s + 1, 2 * s + 1))
     close_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (9, 9))
@@ -788,12 +785,6 @@ def segment_objects(
         invalid = ~np.isfinite(roi_points[..., 2])
         others = ((roi_lab >= 0) & ~own) | taken[y0:y1, x0:x1] | background_full[y0:y1, x0:x1]
         seed = own & above
-        if plane is not None and np.any(thin_full[y0:y1, x0:x1] & own):
-            # a thin part's pixels stand under the full cut: painted where they pass its lower one
-            with np.errstate(invalid="ignore"):
-                h_roi = roi_points @ plane.normal_cam + plane.offset_m
-                low = h_roi > np.maximum(_THIN_MIN_M, _THIN_SIGMAS * config.sigma_m(roi_points[..., 2]))
-            seed |= own & thin_full[y0:y1, x0:x1] & low
         grown = cv2.dilate(seed.view(np.uint8), kernel).view(bool) & above & ~others
         mask = seed | grown
         # pixels without depth around and inside the segment: keep those of the segment's colour
