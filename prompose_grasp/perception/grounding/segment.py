@@ -146,6 +146,11 @@ def _colour_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.sqrt(0.25 * d[..., 0] ** 2 + d[..., 1] ** 2 + d[..., 2] ** 2)
 
 
+def _height_cut(z: np.ndarray, config: GroundingConfig) -> np.ndarray:
+    """(...,) the noise-aware height cut [m] at depths `z`: max(`min_height_m`, `height_sigmas` sigma(z))."""
+    return np.maximum(config.min_height_m, config.height_sigmas * config.sigma_m(z))
+
+
 def _above(points: np.ndarray, plane: SupportPlane | None, config: GroundingConfig) -> np.ndarray:
     """(...,) bool: valid points above the noise-aware height cut (all valid points without a plane)."""
     z = points[..., 2]
@@ -154,8 +159,7 @@ def _above(points: np.ndarray, plane: SupportPlane | None, config: GroundingConf
         return valid
     with np.errstate(invalid="ignore"):
         h = points @ plane.normal_cam + plane.offset_m
-        cut = np.maximum(config.min_height_m, config.height_sigmas * config.sigma_m(z))
-        return valid & (h > cut) & (h < config.max_height_m)
+        return valid & (h > _height_cut(z, config)) & (h < config.max_height_m)
 
 
 def _thin_parts(
@@ -170,9 +174,9 @@ def _thin_parts(
     valid = np.isfinite(z)
     with np.errstate(invalid="ignore"):
         h = Pg @ plane.normal_cam + plane.offset_m
-        sigma = config.sigma_m(z)
-        support = valid & (np.abs(h) < np.maximum(config.min_height_m, config.height_sigmas * sigma))
-        low = valid & ~fg & (h > np.maximum(_THIN_MIN_M, _THIN_SIGMAS * sigma)) & (h < config.max_height_m)
+        support = valid & (np.abs(h) < _height_cut(z, config))
+        low = valid & ~fg & (h > np.maximum(_THIN_MIN_M, _THIN_SIGMAS * config.sigma_m(z)))
+        low &= h < config.max_height_m
     if not np.any(low) or np.count_nonzero(support) < 10:
         return fg
     table = lab_g[support]
@@ -517,16 +521,19 @@ class _Footprint(NamedTuple):
     thickness: float  # [m] 5-95 percentile spread along the points' least principal axis (0: one plane)
     normal_up: float  # |vertical component| of that axis: 1 for a horizontal plane, 0 for an upright one
     points: np.ndarray  # up to 400 (right, forward) footprint points (an even thinning)
+    chroma: np.ndarray  # (2,) median Lab (a, b) of its grid cells
 
 
-def _footprints(labels: np.ndarray, Pg: np.ndarray, plane_coords) -> list[_Footprint]:
+def _footprints(labels: np.ndarray, Pg: np.ndarray, plane_coords, lab_g: np.ndarray) -> list[_Footprint]:
     """Per segment label 0..K-1: its `_Footprint`."""
     out = []
     for k in range(int(labels.max()) + 1):
-        pts = Pg[labels == k]
+        own = labels == k
+        chroma = np.median(lab_g[own][:, 1:], axis=0)
+        pts = Pg[own]
         pts = pts[np.isfinite(pts[:, 2])]
         if len(pts) < 3:
-            out.append(_Footprint(0.0, 0.0, 0.0, 0.0, 0.0, np.zeros((0, 2))))
+            out.append(_Footprint(0.0, 0.0, 0.0, 0.0, 0.0, np.zeros((0, 2)), chroma))
             continue
         c = plane_coords(pts)
         xy = c[:, :2].astype(np.float32)
@@ -537,7 +544,13 @@ def _footprints(labels: np.ndarray, Pg: np.ndarray, plane_coords) -> list[_Footp
         height = float(np.percentile(c[:, 2], 98))
         out.append(
             _Footprint(
-                float(a), float(b), height, thickness, abs(float(least[2])), xy[:: max(1, len(xy) // 400)]
+                float(a),
+                float(b),
+                height,
+                thickness,
+                abs(float(least[2])),
+                xy[:: max(1, len(xy) // 400)],
+                chroma,
             )
         )
     return out
@@ -563,7 +576,7 @@ def _join_hinged(
     pairs = _adjacent_pairs(labels)
     if not pairs:
         return labels
-    feet = _footprints(labels, Pg, plane_coords)
+    feet = _footprints(labels, Pg, plane_coords, lab_g)
     parent = np.arange(K)
     for a, b in sorted(pairs):
         for slab, panel in ((a, b), (b, a)):
@@ -577,8 +590,7 @@ def _join_hinged(
             if not 0.7 <= fb.length / max(fa.length, 1e-6) <= 1.4:
                 continue
             gap = _HINGE_GAP_M
-            chroma = [np.median(lab_g[labels == k][:, 1:], axis=0) for k in (slab, panel)]
-            if _shade_distance(*chroma) < config.colour_edge:
+            if _shade_distance(fa.chroma, fb.chroma) < config.colour_edge:
                 gap = max(gap, fb.height)
             d, _ = cKDTree(fa.points).query(fb.points, k=1, distance_upper_bound=gap)
             if np.min(d) < gap:

@@ -137,6 +137,17 @@ _VARIANTS: dict[tuple[str, str, int, int], ShapePrior] = {}
 _VARIANTS_LOCK = threading.Lock()
 
 
+def _library_family(prior: ShapePrior, with_variants: bool = False) -> ShapeFamily | None:
+    """The built-in family `prior` was made from (`source == "library:<family>"`; with `with_variants`, its
+    articulated variants' `"library:<family>:<label>"` too), or None (a user's mesh, a superquadric)."""
+    if not isinstance(prior, ShapePrior):
+        raise InvalidInputError(f"prior must be a ShapePrior, got {type(prior).__name__}")
+    own = f"library:{prior.name}"
+    if prior.source == own or (with_variants and prior.source.startswith(own + ":")):
+        return FAMILIES.get(prior.name)
+    return None
+
+
 def articulated_variants(prior: ShapePrior, seed: int = 0) -> tuple[ShapePrior, ...]:
     """The other articulations of a library family's prior (a laptop's screen at other openings), or ().
 
@@ -145,10 +156,8 @@ def articulated_variants(prior: ShapePrior, seed: int = 0) -> tuple[ShapePrior, 
     its own unit-box normalisation and typical size, and source `"library:<family>:<label>"`. Built once per
     process and kept.
     """
-    if not isinstance(prior, ShapePrior):
-        raise InvalidInputError(f"prior must be a ShapePrior, got {type(prior).__name__}")
-    family = FAMILIES.get(prior.name)
-    if family is None or not family.articulations or prior.source != f"library:{prior.name}":
+    family = _library_family(prior)
+    if family is None or not family.articulations:
         return ()
     out = []
     for label, build in family.articulations:
@@ -184,10 +193,8 @@ def round_body_axis(prior: ShapePrior) -> np.ndarray | None:
     and only the handle, towards +x, breaks the symmetry) have one. The family's mesh is normalised as the
     prior is (`prior.normalize_to_unit_box`), so the axis lands where the prior's body is.
     """
-    if not isinstance(prior, ShapePrior):
-        raise InvalidInputError(f"prior must be a ShapePrior, got {type(prior).__name__}")
-    family = FAMILIES.get(prior.name)
-    if family is None or family.round_body_axis_m is None or prior.source != f"library:{prior.name}":
+    family = _library_family(prior)
+    if family is None or family.round_body_axis_m is None:
         return None
     with _VARIANTS_LOCK:
         axis = _BODY_AXES.get(family.name)
@@ -204,11 +211,8 @@ def round_body_axis(prior: ShapePrior) -> np.ndarray | None:
 def aspect_weight_factors(prior: ShapePrior) -> np.ndarray:
     """(3,) the prior's family's `ShapeFamily.aspect_weight_factors` for the extent pairs (x:y, y:z, x:z),
     its articulated variants' too; ones for a prior of no library family (a user's mesh, a superquadric)."""
-    if not isinstance(prior, ShapePrior):
-        raise InvalidInputError(f"prior must be a ShapePrior, got {type(prior).__name__}")
-    family = FAMILIES.get(prior.name)
-    own = f"library:{prior.name}"
-    if family is None or not (prior.source == own or prior.source.startswith(own + ":")):
+    family = _library_family(prior, with_variants=True)
+    if family is None:
         return np.ones(3)
     return np.asarray(family.aspect_weight_factors, dtype=np.float64)
 
