@@ -19,6 +19,7 @@ from prompose_grasp.perception.grounding.describe import (
     colour_names,
     dominant_colour,
     handle_seen,
+    shape_families,
     shape_family,
     size_class,
     taper,
@@ -348,6 +349,55 @@ def test_a_box_corner_and_a_can_through_depth_noise(sigma):
         can = _along_rays(_visible_cylinder(0.033, 0.12, centre, rng), sigma, rng)
         assert shape_family(box, _measured_extent(box)) == "box", i
         assert shape_family(can, _measured_extent(can)) == "cylinder", i
+
+
+def test_a_box_seen_end_on_through_noise_keeps_box_among_its_readings():
+    """A tea box (13 x 6.2 x 8.5 cm) seen end-on, 0.9-1.2 m away, through 8 mm of axial noise (the
+    RealSense-like preset at 1.3 m): its one seen face is 6 cm wide, which a 6 cm circle follows nearly as
+    well as the rectangle does, so the box/cylinder rule is unreliable here (tabletop seed 922: 0.09 mm of
+    change in the points flipped it). Near its threshold the other reading is kept (`shape_families`), so
+    "box" stays among the readings of some boxes that the family alone reads "cylinder"; a can keeps its
+    clear "cylinder" at the same noise.
+
+    Counts over 40 draws, measured: 14 boxes read "cylinder", 8 of them with "box" as the alternative; 2 of
+    the 40 cans gain "box" as theirs (their family stays "cylinder"). The bounds leave a few draws of slack.
+    Most end-on boxes far out are still misread outright: the band softens the rule, it does not mend it.
+    """
+    readings, cans = [], []
+    for i in range(40):
+        rng = np.random.default_rng(i)
+        centre = np.array([rng.uniform(-0.2, 0.3), rng.uniform(0.9, 1.2)])
+        view = math.atan2(centre[1], centre[0])  # the long side along the line of sight: end-on
+        box = _along_rays(_visible_box(0.13, 0.062, 0.085, view + rng.uniform(-0.05, 0.05), centre, rng),
+                          0.008, rng)  # fmt: skip
+        can = _along_rays(_visible_cylinder(0.033, 0.12, centre, rng), 0.008, rng)
+        readings.append(shape_families(box, _measured_extent(box)))
+        cans.append(shape_families(can, _measured_extent(can)))
+        # the family is the first reading, and an alternative is always the other of box and cylinder
+        assert readings[-1][0] == shape_family(box, _measured_extent(box))
+        assert readings[-1][1] in (None, {"box": "cylinder", "cylinder": "box"}.get(readings[-1][0], "-"))
+    misread = [g for f, g in readings if f == "cylinder"]
+    assert len(misread) >= 8  # the case this is for: the family alone misreads some of these boxes
+    assert misread.count("box") >= 5
+    assert all(f == "cylinder" for f, _ in cans) and sum(g == "box" for _, g in cans) <= 3
+
+
+def test_a_near_threshold_reading_scores_half_way_between_box_and_cylinder():
+    """The shape term of a candidate read "cylinder" with "box" as the alternative is the mean of the two
+    readings' terms: its total (logit / 2 + 1, see `score_candidates`) lies exactly half way."""
+    prob = {"box": 0.9, "cylinder": 0.05, "sphere": 0.05}  # p(family | noun) of a box-like noun
+    f = feats(
+        families=("box", "cylinder", "cylinder"),
+        alternative_families=(None, None, "box"),
+    )
+    s = score_candidates(parse_prompt("the tea box"), f, prob)
+    total = np.log(s / (1.0 - s)) / 2.0 + 1.0
+    assert total[0] > total[2] > total[1]
+    assert total[2] == pytest.approx(0.5 * (total[0] + total[1]), abs=1e-9)
+    # without alternatives (a grounder that does not measure them) the families alone count
+    families_only = feats(families=("box", "cylinder", "cylinder"))
+    plain = score_candidates(parse_prompt("the tea box"), families_only, prob)
+    assert plain[1] == plain[2] == pytest.approx(s[1])
 
 
 def _handle(r: float, h: float, centre: np.ndarray, azimuth: float, rng) -> np.ndarray:

@@ -20,6 +20,7 @@ from prompose_grasp.perception.grounding.describe import (
     describe_text,
     dominant_colour,
     handle_seen,
+    shape_families,
     shape_family,
     size_class,
     taper,
@@ -250,7 +251,7 @@ class Grounder:
         step = max(1, len(ys) // _MAX_COLOUR_PIXELS)
         colour, colour_rgb, shares = dominant_colour(rgb[ys[::step], xs[::step]])
         size = size_class(extent)
-        family = shape_family(coords, extent)
+        family, alternative = shape_families(coords, extent)
         tops = top_height_histogram(coords, float(extent[2]), float(extent[0]))
         handle, body_taper = False, float("nan")
         if frame is not None:  # without a plane there is no footprint to find a handle around
@@ -273,6 +274,7 @@ class Grounder:
             top_height_histogram=tops,
             handle_seen=handle,
             taper=body_taper,
+            shape_family_alternative=alternative,
         )
         return attrs, shares, xy
 
@@ -361,6 +363,7 @@ class Grounder:
             palette=PALETTE,
             size_classes=tuple(d[0].size_class for d in described),
             families=tuple(d[0].shape_family for d in described),
+            alternative_families=tuple(d[0].shape_family_alternative for d in described),
             extents_m=np.stack([d[0].extent_m for d in described]),
             plane_xy_m=np.stack([d[2] for d in described]),
             distance_m=np.array([float(np.linalg.norm(d[0].centroid_cam)) for d in described]),

@@ -7,7 +7,7 @@ cosine):
 |---|---|---|
 | semantic | cosine (MiniLM) of the prompt's target phrase and the candidate's description | 1.0 |
 | colour | +1 when >= 40 % of the mask has an asked colour, falling linearly to -1 at 0 % | 1.5 |
-| shape | fit of the measured shape family to the noun: p(family | noun) / max p, to [-1, 1] | 0.5 |
+| shape | fit of the measured shape family to the noun: p(family | noun) / max p, to [-1, 1] (*) | 0.5 |
 | metric size | log-normal fit of the measured extents to the typical size of the noun's prior family | 1.5 |
 | top heights | overlap of the candidate's and the family mesh's top-height histograms, to [-1, 1] | 1.5 |
 | handle | a handle seen: +1 when the noun's family mesh has one, -1 when it has none; 0 unseen | 1.0 |
@@ -16,6 +16,8 @@ cosine):
 | size, adjective | "small" +1 for size class small, 0 medium, -1 large (and mirrored for "large") | 0.5 |
 | position | rank among the plausible candidates ("nearest", "leftmost", ...), like superlatives | 1.5 |
 | relation | direction cosine to the reference object ("left of", "behind") or nearness ("next to") | 1.5 |
+
+(*) A box/cylinder reading near its threshold (`describe.shape_families`): the mean of both readings' fits.
 
 The colour weight is the largest single-term weight because a colour word is the most reliable thing a
 prompt says about an image. Ranking terms (superlatives, positions) only rank the *plausible* candidates:
@@ -164,6 +166,8 @@ class CandidateFeatures:
         top_heights: (K, HEIGHT_BINS) top-height histograms (rows sum to 1), or None when not measured.
         handles: (K,) bool, a handle seen on each candidate, or None when not measured.
         tapers: (K,) `describe.taper` of each candidate (NaN where not measured), or None.
+        alternative_families: K alternative shape families (None where the family is clear), or None
+            (`describe.shape_families`).
         plane_xy_m: (K, 2) (right, forward) footprint centres on the support plane [m] (camera x, z without
             a plane).
         distance_m: (K,) distance of the centroids from the camera [m].
@@ -180,6 +184,7 @@ class CandidateFeatures:
     top_heights: np.ndarray | None = None
     handles: np.ndarray | None = None
     tapers: np.ndarray | None = None
+    alternative_families: tuple[str | None, ...] | None = None
 
 
 def _rank_term(values: np.ndarray, direction: int, plausible: np.ndarray) -> np.ndarray:
@@ -209,8 +214,14 @@ def _base_terms(
         total += w.colour * (2.0 * np.clip(share / w.colour_full_share, 0.0, 1.0) - 1.0)
     if shape_prob:
         pmax = max(shape_prob.values())
+
+        def fit(f: str) -> float:
+            return 0.0 if f not in shape_prob else 2.0 * shape_prob[f] / pmax - 1.0
+
+        alternatives = feats.alternative_families or (None,) * len(feats.families)
+        # near the box/cylinder threshold both readings count half (module docstring)
         total += w.shape * np.array(
-            [0.0 if f not in shape_prob else 2.0 * shape_prob[f] / pmax - 1.0 for f in feats.families]
+            [fit(f) if g is None else 0.5 * (fit(f) + fit(g)) for f, g in zip(feats.families, alternatives)]
         )
     if noun_prior is not None and parsed.size is None:
         total += w.metric_size * metric_size_term(feats.extents_m, noun_prior.typical_extent_m, w)

@@ -164,6 +164,8 @@ class CandidateAttributes:
         handle_seen: a round candidate shows a handle (`describe.handle_seen`): a mug, not a cup.
         taper: log(r_upper / r_lower) of a round candidate's body (`describe.taper`): > 0 widening upwards
             (a paper cup), NaN when not measured.
+        shape_family_alternative: "box" or "cylinder" when the box/cylinder test came out near its
+            threshold (`describe.shape_families`): the shape score then weighs both; else None.
     """
 
     colour_name: str
@@ -177,6 +179,7 @@ class CandidateAttributes:
     top_height_histogram: np.ndarray = field(default_factory=lambda: np.zeros(0))
     handle_seen: bool = False
     taper: float = float("nan")
+    shape_family_alternative: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "colour_rgb", _frozen(np.asarray(self.colour_rgb, dtype=np.uint8)))
