@@ -28,10 +28,17 @@ _NEAR_THRESHOLD_CAN = pytest.mark.xfail(strict=True, reason="can reads near the 
 
 
 @pytest.mark.sim
-@pytest.mark.parametrize(("seed", "prompt", "name"), [(25, "soda can", "can"),
-                                                      pytest.param(31, "soda can", "can", marks=_NEAR_THRESHOLD_CAN),
-                                                      (39, "soda can", "can"), (29, "tea box", "box"),
-                                                      (15, "tea box", "box"), (136, "tea box", "box")])  # fmt: skip
+@pytest.mark.parametrize(
+    ("seed", "prompt", "name"),
+    [
+        (25, "soda can", "can"),
+        pytest.param(31, "soda can", "can", marks=_NEAR_THRESHOLD_CAN),
+        (39, "soda can", "can"),
+        (29, "tea box", "box"),
+        (15, "tea box", "box"),
+        (136, "tea box", "box"),
+    ],
+)
 def test_the_named_object_is_the_best_candidate(grounder, seed, prompt, name):
     from sim.scene_file import build_scene, load_scene
 
