@@ -34,6 +34,7 @@ from prompose_grasp.perception.grounding.plane import (
 from prompose_grasp.perception.grounding.score import (
     CandidateFeatures,
     NounPrior,
+    RivalReadings,
     ScoringWeights,
     metric_size_term,
     score_candidates,
@@ -643,6 +644,33 @@ def test_scoring_terms_rank_as_their_words_say():
     ref = (feats(plane_xy_m=xy, description_sim=ref_sim), None)
     assert np.argmax(score_candidates(parse_prompt("the thing left of the bowl"), f, None, ref)) == 0
     assert np.argmax(score_candidates(parse_prompt("the thing right of the bowl"), f, None, ref)) == 2
+
+
+def test_a_candidate_another_family_explains_better_loses_by_the_rival_term():
+    """The prompt "the mug" and two round candidates, of a mug's typical size and of a can's. Read as a can,
+    the can-sized one scores higher than read as a mug, so the rival term takes w.rival times the difference
+    from it; the mug-sized one is better read as the mug, and keeps its score. Known answers from the size
+    term alone (`metric_size_term`, computed independently here): the two readings differ only by it."""
+    w = ScoringWeights()
+    mug = NounPrior("mug", 0.9, np.array([0.116, 0.082, 0.095]))
+    can = NounPrior("can", 0.9, np.array([0.066, 0.066, 0.115]))
+    ext = np.stack([mug.typical_extent_m, can.typical_extent_m])
+    f = feats(extents_m=ext, families=("cylinder", "cylinder"), description_sim=np.full(2, 0.3),
+              colour_shares=np.zeros((2, len(PALETTE))), size_classes=("medium",) * 2,
+              plane_xy_m=np.zeros((2, 2)), distance_m=np.ones(2))  # fmt: skip
+    prompt = parse_prompt("the mug")
+    plain = score_candidates(prompt, f, None, noun_prior=mug)
+    with_rival = score_candidates(prompt, f, None, noun_prior=mug, rivals=RivalReadings(f, ((f, None, can),)))
+    logit = lambda s: np.log(s / (1.0 - s)) / 2.0  # noqa: E731 -- total - 1 of `score_candidates`
+    as_mug = metric_size_term(ext, mug.typical_extent_m, w)
+    as_can = metric_size_term(ext, can.typical_extent_m, w)
+    assert as_can[1] > as_mug[1] and as_can[0] < as_mug[0]  # the construction
+    expected = w.rival * w.metric_size * (as_can[1] - as_mug[1])
+    assert logit(plain[1]) - logit(with_rival[1]) == pytest.approx(expected, abs=1e-9)
+    assert with_rival[0] == pytest.approx(plain[0], abs=1e-12)
+    # no noun prior (a noun the library does not know) or no rivals: the term is off
+    assert np.allclose(score_candidates(prompt, f, None, rivals=RivalReadings(f, ((f, None, can),))),
+                       score_candidates(prompt, f, None))  # fmt: skip
 
 
 def test_metric_size_term_prefers_the_typical_size_and_forgives_shrinking():

@@ -32,6 +32,7 @@ from prompose_grasp.perception.grounding.score import (
     FAMILY_TEXTS,
     CandidateFeatures,
     NounPrior,
+    RivalReadings,
     ScoringWeights,
     score_candidates,
 )
@@ -161,8 +162,8 @@ class Grounder:
             return self._priors
 
     def warm_up(self) -> None:
-        """Load the text encoder, embed every possible description and the shape-family sentences, and
-        prepare the prior library's family descriptions.
+        """Load the text encoder, embed every possible description, the shape-family sentences and the prior
+        library's family names, and build every family's `NounPrior` (the rival term reads them all).
 
         Descriptions come from a closed vocabulary (3 sizes x 12 colours x 6 families = 216 phrases), so
         after this a first `ground` call only encodes the prompt's own phrases (one short batch).
@@ -173,8 +174,9 @@ class Grounder:
             for colour in PALETTE
             for family in SHAPE_FAMILIES
         ]
-        self._embed([*FAMILY_TEXTS.values(), *phrases])
-        self.noun_prior("object")  # embeds the library's family descriptions once
+        self._embed([*FAMILY_TEXTS.values(), *phrases, *self._family_names()])
+        for name in ("object", *self._family_names()):  # the rival term reads every family (`_rivals`)
+            self.noun_prior(name)
 
     def noun_prior(self, noun: str) -> NounPrior | None:
         """The library family `noun` names (its best match at or above the library's threshold), or None.
@@ -390,6 +392,8 @@ class Grounder:
             + [d[0].description for d in described]
         )
         feats = self._features(parsed.text, described)
+        noun_prior = self._prior_for(parsed, has_plane)
+        rivals = self._rivals(parsed, described, noun_prior, has_plane)
         reference = None
         if parsed.reference is not None:
             reference = (self._features(parsed.reference.text, described), self._shape_prob(parsed.reference))
@@ -399,11 +403,31 @@ class Grounder:
             self._shape_prob(parsed),
             reference,
             self.weights,
-            noun_prior=self._prior_for(parsed, has_plane),
+            noun_prior=noun_prior,
             reference_prior=None
             if parsed.reference is None
             else self._prior_for(parsed.reference, has_plane),
+            rivals=rivals,
         )
+
+    def _rivals(
+        self, parsed: ParsedPrompt, described: list, noun_prior: NounPrior | None, has_plane: bool
+    ) -> RivalReadings | None:
+        """The candidates read as the prompt's noun and as the library's other families (`RivalReadings`);
+        None when the noun names no family or the rival term is off."""
+        if noun_prior is None or self.weights.rival <= 0.0 or not parsed.noun:
+            return None
+        others = []
+        for name in self._family_names():
+            rival = ParsedPrompt(text=name, noun=name)
+            prior = self._prior_for(rival, has_plane)
+            if prior is not None and prior.family != noun_prior.family:
+                others.append((self._features(name, described), self._shape_prob(rival), prior))
+        return RivalReadings(self._features(parsed.noun, described), tuple(others))
+
+    def _family_names(self) -> tuple[str, ...]:
+        """The prior library's family names (none for a library that does not list them)."""
+        return tuple(getattr(self.priors, "families", ()))
 
 
 _GROUNDERS: dict[GroundingConfig, Grounder] = {}
