@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -356,11 +357,18 @@ class Grounder:
         log.debug("grounded %r: %d candidates in %.1f ms", prompt, len(candidates), 1e3 * timing.total_s)
         return GroundingResult(prompt=prompt, candidates=candidates, support_plane=plane, timing=timing)
 
+    def _description_sim(self, text: str, described: list) -> np.ndarray:
+        """(K,) cosine of `text` with each candidate's description."""
+        E = self._embed([text, *(d[0].description for d in described)])
+        return E[1:] @ E[0]
+
+    def _for_text(self, feats: CandidateFeatures, text: str, described: list) -> CandidateFeatures:
+        """`feats` with `description_sim` for another text (the rest does not depend on the text)."""
+        return dataclasses.replace(feats, description_sim=self._description_sim(text, described))
+
     def _features(self, text: str, described: list) -> CandidateFeatures:
-        descriptions = [d[0].description for d in described]
-        E = self._embed([text, *descriptions])
         return CandidateFeatures(
-            description_sim=E[1:] @ E[0],
+            description_sim=self._description_sim(text, described),
             colour_shares=np.array([[d[1][c] for c in PALETTE] for d in described]),
             palette=PALETTE,
             size_classes=tuple(d[0].size_class for d in described),
@@ -393,10 +401,13 @@ class Grounder:
         )
         feats = self._features(parsed.text, described)
         noun_prior = self._prior_for(parsed, has_plane)
-        rivals = self._rivals(parsed, described, noun_prior, has_plane)
+        rivals = self._rivals(parsed, feats, described, noun_prior, has_plane)
         reference = None
         if parsed.reference is not None:
-            reference = (self._features(parsed.reference.text, described), self._shape_prob(parsed.reference))
+            reference = (
+                self._for_text(feats, parsed.reference.text, described),
+                self._shape_prob(parsed.reference),
+            )
         return score_candidates(
             parsed,
             feats,
@@ -411,7 +422,12 @@ class Grounder:
         )
 
     def _rivals(
-        self, parsed: ParsedPrompt, described: list, noun_prior: NounPrior | None, has_plane: bool
+        self,
+        parsed: ParsedPrompt,
+        feats: CandidateFeatures,
+        described: list,
+        noun_prior: NounPrior | None,
+        has_plane: bool,
     ) -> RivalReadings | None:
         """The candidates read as the prompt's noun and as the library's other families (`RivalReadings`);
         None when the noun names no family or the rival term is off."""
@@ -422,8 +438,8 @@ class Grounder:
             rival = ParsedPrompt(text=name, noun=name)
             prior = self._prior_for(rival, has_plane)
             if prior is not None and prior.family != noun_prior.family:
-                others.append((self._features(name, described), self._shape_prob(rival), prior))
-        return RivalReadings(self._features(parsed.noun, described), tuple(others))
+                others.append((self._for_text(feats, name, described), self._shape_prob(rival), prior))
+        return RivalReadings(self._for_text(feats, parsed.noun, described), tuple(others))
 
     def _family_names(self) -> tuple[str, ...]:
         """The prior library's family names (none for a library that does not list them)."""
