@@ -22,6 +22,7 @@ __all__ = [
     "back_project",
     "depth_to_point_map",
     "farthest_point_sampling",
+    "outline_corrected_points",
     "robust_descriptor",
     "valid_depth_mask",
 ]
@@ -76,6 +77,79 @@ def back_project(depth: ArrayLike, intrinsics: CameraIntrinsics, mask: ArrayLike
     points = np.empty((len(z), 3))
     points[:, 0] = (u - intrinsics.cx) * z / intrinsics.fx
     points[:, 1] = (v - intrinsics.cy) * z / intrinsics.fy
+    points[:, 2] = z
+    return points
+
+
+#: 4-neighbours (row, column) of a pixel.
+_NEIGHBOURS = ((0, 1), (0, -1), (1, 0), (-1, 0))
+
+
+def outline_corrected_points(
+    depth: ArrayLike, intrinsics: CameraIntrinsics, mask: ArrayLike, occlusion_margin_m: float
+) -> np.ndarray:
+    """An object's camera-frame points: `back_project` of its mask, the free outline moved half a pixel out.
+
+    A depth pixel samples the surface at its centre, so the object's outermost pixels lie on average half a
+    pixel inside its true outline, and the seen extent across the view is about one pixel short (a bottle
+    6.5 cm wide 0.9 m away: 2 mm, 3 %). A point whose 4-neighbour off the mask is inside the image and not
+    nearer than the point by more than `occlusion_margin_m` (background, or no reading) is on the object's
+    own outline: it moves half a pixel towards each such neighbour, across its ray (x and y in proportion to
+    its depth; z is kept). Edges the image border or an occluder (a nearer neighbour) cut are not the object's
+    outline and stay. Every other point is exactly `back_project`'s.
+
+    Masked pixels without a reading beside the outline (a sensor's edge dropout) are not walked over to
+    where the mask ends: the grounder's masks take in such pixels beyond the object too, and doing so made
+    widths 2-6 % too large on the development splits (docs/fit.md).
+
+    Args:
+        depth: (H, W) float depth [m], as `back_project`.
+        intrinsics: the camera; (height, width) must equal depth.shape.
+        mask: (H, W) bool (or integer, nonzero = selected): the object's pixels.
+        occlusion_margin_m: a neighbour nearer than the point by more than this [m] is an occluder.
+    Returns:
+        (N, 3) float64 points [m], one per valid masked pixel, in `back_project`'s (row-major) order.
+    """
+    D = _depth(depth, intrinsics)
+    M = np.asarray(mask)
+    if M.shape != D.shape:
+        raise InvalidInputError(f"mask has shape {M.shape}, depth has {D.shape}; they must match")
+    if not (M.dtype == np.bool_ or np.issubdtype(M.dtype, np.integer)):
+        raise InvalidInputError(f"mask must be bool (or integer, nonzero = selected), not {M.dtype}")
+    if not (math.isfinite(occlusion_margin_m) and occlusion_margin_m >= 0.0):
+        raise InvalidInputError(f"occlusion_margin_m must be a finite number >= 0, got {occlusion_margin_m}")
+    M = M.astype(bool, copy=False)
+    valid = valid_depth_mask(D)
+    v, u = np.nonzero(valid & M)
+    z = D[v, u].astype(np.float64)
+    du = np.zeros(len(z))
+    dv = np.zeros(len(z))
+    if len(z):
+        # the few outline pixels first (a crop one pixel round the mask; off the image counts as on the
+        # mask: the border cuts, it is not an outline), then their neighbours' depths
+        H, W = D.shape
+        r0, r1 = max(int(v[0]) - 1, 0), min(int(v[-1]) + 2, H)
+        c0, c1 = max(int(u.min()) - 1, 0), min(int(u.max()) + 2, W)
+        on = np.pad(M[r0:r1, c0:c1], 1, constant_values=True)
+        inner = on[1:-1, 1:-1]
+        edge = inner & ~(on[1:-1, 2:] & on[1:-1, :-2] & on[2:, 1:-1] & on[:-2, 1:-1])
+        ev, eu = np.nonzero(edge & valid[r0:r1, c0:c1])
+        ev += r0
+        eu += c0
+        k = np.searchsorted(v * W + u, ev * W + eu)  # their rows in the point list (row-major order)
+        ez = z[k]
+        for dr, dc in _NEIGHBOURS:
+            nv, nu = ev + dr, eu + dc
+            inside = (nv >= 0) & (nv < H) & (nu >= 0) & (nu < W)
+            nv, nu = np.clip(nv, 0, H - 1), np.clip(nu, 0, W - 1)
+            with np.errstate(invalid="ignore"):
+                not_nearer = ~valid[nv, nu] | (D[nv, nu] >= ez - occlusion_margin_m)
+            free = inside & ~M[nv, nu] & not_nearer
+            du[k] += 0.5 * dc * free
+            dv[k] += 0.5 * dr * free
+    points = np.empty((len(z), 3))
+    points[:, 0] = (u + du - intrinsics.cx) * z / intrinsics.fx
+    points[:, 1] = (v + dv - intrinsics.cy) * z / intrinsics.fy
     points[:, 2] = z
     return points
 

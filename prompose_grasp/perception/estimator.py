@@ -28,7 +28,7 @@ import trimesh
 
 from prompose_grasp.errors import InvalidInputError, ObjectNotFoundError
 from prompose_grasp.geometry import Pose9D
-from prompose_grasp.geometry.pointcloud import back_project, valid_depth_mask
+from prompose_grasp.geometry.pointcloud import outline_corrected_points, valid_depth_mask
 from prompose_grasp.perception.fit import FitConfig, SceneView, fit_pose
 from prompose_grasp.perception.grounding import Candidate, Grounder, GroundingResult, SupportPlane
 from prompose_grasp.perception.grounding.plane import plane_under_object
@@ -244,7 +244,7 @@ class ProMPose:
             floor = min_score_ratio * float(candidates[0].score)
             candidates = tuple(c for c in candidates if float(c.score) >= floor)
         for candidate in candidates:
-            points = back_project(frame.depth_m, frame.intrinsics, mask=candidate.mask)
+            points = self.object_points(frame, candidate.mask)
             if len(points) < self.config.min_points:
                 continue
             t0 = time.perf_counter()
@@ -296,7 +296,7 @@ class ProMPose:
             raise InvalidInputError(
                 f"mask must be a {frame.depth_m.shape} bool image, got {m.dtype} {m.shape}"
             )
-        points = back_project(frame.depth_m, frame.intrinsics, mask=m)
+        points = self.object_points(frame, m)
         if len(points) < self.config.min_points:
             raise ObjectNotFoundError(
                 f"the mask holds {len(points)} valid depth points; the fit needs {self.config.min_points}"
@@ -321,6 +321,14 @@ class ProMPose:
         )
         est.timings_ms["total"] = _ms(t_total)
         return est
+
+    def object_points(self, frame: RGBDFrame, mask: np.ndarray) -> np.ndarray:
+        """(N, 3) camera-frame points of the object's `mask` in `frame`, the fit's observation: the masked
+        depth back-projected, its free outline half a pixel out (`outline_corrected_points`: pixel centres
+        sample the surface, and the outermost lie half a pixel inside the outline)."""
+        return outline_corrected_points(
+            frame.depth_m, frame.intrinsics, mask, self.fit_config.occlusion_margin_m
+        )
 
     def _generate_prior(self, prompt: str, points: np.ndarray, grounding: GroundingResult) -> ShapePrior:
         """The prior for `prompt`; a library family's prior is kept per prompt and handed out again.

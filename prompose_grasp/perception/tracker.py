@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.camera import CameraIntrinsics
-from prompose_grasp.geometry.pointcloud import back_project, valid_depth_mask
+from prompose_grasp.geometry.pointcloud import outline_corrected_points, valid_depth_mask
 from prompose_grasp.geometry.se3 import invert_T, so3_exp, so3_log
 from prompose_grasp.perception.estimator import Estimate, plane_vector
 from prompose_grasp.perception.fit import FitResult, SceneView, fit_pose, protrusion_points
@@ -388,7 +388,7 @@ class Tracker:
         self._pose = pose
 
     def _observed(self, frame: RGBDFrame, mask: np.ndarray) -> np.ndarray:
-        return back_project(frame.depth_m, frame.intrinsics, mask=mask)
+        return self.estimator.object_points(frame, mask)
 
     def _select(
         self,
@@ -458,10 +458,13 @@ class Tracker:
                 q = np.column_stack([np.hypot(local[:, 0], local[:, 2]), local[:, 1]])
                 d, _ = cKDTree(profile).query(q, k=1, distance_upper_bound=self.config.surface_margin_m)
             inside[idx[~np.isfinite(d)]] = False
-        # each sampled pixel stands for its k x k block (cut at the crop's edge)
         picked = np.zeros(sub.shape, dtype=bool)
         picked[rows[inside], cols[inside]] = True
+        # the points as the first frame's fit saw them: the free outline half a sample out
+        # (`ProMPose.object_points`); the same pixels in the same row-major order
+        points = outline_corrected_points(sub, crop, picked, self.estimator.fit_config.occlusion_margin_m)
+        # each sampled pixel stands for its k x k block (cut at the crop's edge)
         if k > 1:
             picked = np.repeat(np.repeat(picked, k, axis=0), k, axis=1)
         mask[y0 : y1 + 1, x0 : x1 + 1] = picked[: y1 - y0 + 1, : x1 - x0 + 1]
-        return mask, pts[inside]
+        return mask, points

@@ -15,6 +15,7 @@ from prompose_grasp.geometry.pointcloud import (
     back_project,
     depth_to_point_map,
     farthest_point_sampling,
+    outline_corrected_points,
     robust_descriptor,
 )
 
@@ -101,6 +102,71 @@ def test_back_project_mask_and_errors():
     with pytest.raises(InvalidInputError, match="mask"):
         back_project(np.ones((4, 5)), CAM, np.ones((4, 5)))
     assert back_project(np.zeros((4, 5)), CAM).shape == (0, 3)
+
+
+# A 640 x 480 camera for the outline tests: a plate seen face-on covers whole pixels, so its true extent is
+# known by construction.
+VGA = CameraIntrinsics(fx=400.0, fy=400.0, cx=319.5, cy=239.5, width=640, height=480)
+
+
+def _plate_scene(rows: slice, cols: slice, plate_z: float = 0.8, background_z: float = 1.2):
+    depth = np.full((480, 640), background_z)
+    depth[rows, cols] = plate_z
+    mask = np.zeros((480, 640), dtype=bool)
+    mask[rows, cols] = True
+    return depth, mask
+
+
+def test_outline_correction_recovers_the_extent_of_a_face_on_plate():
+    # A plate covering pixel columns 200..299 spans image x from 199.5 to 299.5 (pixel edges): 100 pixels,
+    # 100 * z / f = 0.2 m at z = 0.8. Pixel centres span only 99 pixels; the corrected outline spans 100.
+    depth, mask = _plate_scene(slice(100, 150), slice(200, 300))
+    raw = back_project(depth, VGA, mask)
+    pts = outline_corrected_points(depth, VGA, mask, occlusion_margin_m=0.01)
+    assert pts.shape == raw.shape
+    np.testing.assert_allclose(np.ptp(raw[:, 0]), 99 * 0.8 / 400.0, atol=ATOL)
+    np.testing.assert_allclose(np.ptp(pts[:, 0]), 100 * 0.8 / 400.0, atol=ATOL)
+    np.testing.assert_allclose(np.ptp(pts[:, 1]), 50 * 0.8 / 400.0, atol=ATOL)
+    np.testing.assert_array_equal(pts[:, 2], raw[:, 2])  # depth is kept
+    # only the outline moves, by half a pixel per free side (a corner both ways)
+    moved = np.any(pts != raw, axis=1)
+    assert moved.sum() == 2 * 100 + 2 * 50 - 4
+    corner = np.flatnonzero((raw[:, 0] == raw[:, 0].min()) & (raw[:, 1] == raw[:, 1].min()))
+    np.testing.assert_allclose(raw[corner, :2] - pts[corner, :2], [[0.001, 0.001]], atol=ATOL)
+
+
+def test_outline_correction_leaves_edges_cut_by_the_border_or_an_occluder():
+    # Plate in the image's top-right corner: its top and right edges are the image border's.
+    depth, mask = _plate_scene(slice(0, 40), slice(600, 640))
+    # A nearer occluder (0.1 m in front) just left of its lower half; its upper half's left edge is free.
+    depth[20:40, 590:600] = 0.7
+    raw = back_project(depth, VGA, mask)
+    pts = outline_corrected_points(depth, VGA, mask, occlusion_margin_m=0.01)
+    shift = np.round((pts[:, :2] - raw[:, :2]) * 400.0 / 0.8, 6)  # in pixels
+    u = np.round(raw[:, 0] * 400.0 / 0.8 + 319.5).astype(int)
+    v = np.round(raw[:, 1] * 400.0 / 0.8 + 239.5).astype(int)
+    assert np.all(shift[u == 639, 0] == 0.0) and np.all(shift[v == 0, 1] == 0.0)  # border: kept
+    left = u == 600
+    assert np.all(shift[left & (v < 20), 0] == -0.5)  # free edge beside the far background
+    assert np.all(shift[left & (v >= 20), 0] == 0.0)  # beside the occluder: kept
+    assert np.all(shift[v == 39, 1] == 0.5)  # bottom edge, background below
+    # A neighbour without a reading is no occluder: that edge is the object's own.
+    depth[20:40, 590:600] = np.nan
+    pts = outline_corrected_points(depth, VGA, mask, occlusion_margin_m=0.01)
+    assert np.all(np.round((pts[left, 0] - raw[left, 0]) * 400.0 / 0.8, 6) == -0.5)
+
+
+def test_outline_correction_input_errors():
+    depth, mask = _plate_scene(slice(10, 20), slice(10, 20))
+    with pytest.raises(InvalidInputError, match="mask"):
+        outline_corrected_points(depth, VGA, mask[:-1], 0.01)
+    with pytest.raises(InvalidInputError, match="mask"):
+        outline_corrected_points(depth, VGA, mask.astype(float), 0.01)
+    with pytest.raises(InvalidInputError, match="occlusion_margin_m"):
+        outline_corrected_points(depth, VGA, mask, float("nan"))
+    with pytest.raises(InvalidInputError, match="floating"):
+        outline_corrected_points(depth.astype(np.uint16), VGA, mask, 0.01)
+    assert outline_corrected_points(depth, VGA, np.zeros_like(mask), 0.01).shape == (0, 3)
 
 
 def test_point_map_matches_back_projection():
