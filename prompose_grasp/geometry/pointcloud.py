@@ -46,6 +46,16 @@ def _depth(depth: ArrayLike, intrinsics: CameraIntrinsics) -> np.ndarray:
     return D
 
 
+def _pixel_mask(mask: ArrayLike, shape: tuple[int, ...]) -> np.ndarray:
+    """(H, W) bool of a pixel selection given as bool or integer (nonzero = selected) of the depth's shape."""
+    M = np.asarray(mask)
+    if M.shape != shape:
+        raise InvalidInputError(f"mask has shape {M.shape}, depth has {shape}; they must match")
+    if not (M.dtype == np.bool_ or np.issubdtype(M.dtype, np.integer)):
+        raise InvalidInputError(f"mask must be bool (or integer, nonzero = selected), not {M.dtype}")
+    return M.astype(bool, copy=False)
+
+
 def valid_depth_mask(depth: ArrayLike) -> np.ndarray:
     """(H, W) bool: pixels with a depth reading (finite and > MIN_VALID_DEPTH_M)."""
     D = np.asarray(depth)
@@ -66,12 +76,7 @@ def back_project(depth: ArrayLike, intrinsics: CameraIntrinsics, mask: ArrayLike
     D = _depth(depth, intrinsics)
     keep = valid_depth_mask(D)
     if mask is not None:
-        M = np.asarray(mask)
-        if M.shape != D.shape:
-            raise InvalidInputError(f"mask has shape {M.shape}, depth has {D.shape}; they must match")
-        if not (M.dtype == np.bool_ or np.issubdtype(M.dtype, np.integer)):
-            raise InvalidInputError(f"mask must be bool (or integer, nonzero = selected), not {M.dtype}")
-        keep &= M.astype(bool, copy=False)
+        keep &= _pixel_mask(mask, D.shape)
     v, u = np.nonzero(keep)
     z = D[v, u].astype(np.float64)
     points = np.empty((len(z), 3))
@@ -111,14 +116,9 @@ def outline_corrected_points(
         (N, 3) float64 points [m], one per valid masked pixel, in `back_project`'s (row-major) order.
     """
     D = _depth(depth, intrinsics)
-    M = np.asarray(mask)
-    if M.shape != D.shape:
-        raise InvalidInputError(f"mask has shape {M.shape}, depth has {D.shape}; they must match")
-    if not (M.dtype == np.bool_ or np.issubdtype(M.dtype, np.integer)):
-        raise InvalidInputError(f"mask must be bool (or integer, nonzero = selected), not {M.dtype}")
+    M = _pixel_mask(mask, D.shape)
     if not (math.isfinite(occlusion_margin_m) and occlusion_margin_m >= 0.0):
         raise InvalidInputError(f"occlusion_margin_m must be a finite number >= 0, got {occlusion_margin_m}")
-    M = M.astype(bool, copy=False)
     valid = valid_depth_mask(D)
     v, u = np.nonzero(valid & M)
     z = D[v, u].astype(np.float64)
