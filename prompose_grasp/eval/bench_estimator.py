@@ -25,6 +25,10 @@ loss): its grounding score times coverage, kept through the tracked updates, whi
 `--methods` (`methods=`) runs only the named rows (default: all); the rows not run are absent from the report
 (e.g. the tracked rows alone on a long video-rate split, where the single-frame rows would cost most).
 
+A frame's ground truth follows the standard CAMERA25 / REAL275 test protocol (`eval.synthetic.
+evaluated_objects`): the test-category objects with at least 64 depth pixels in view. A hidden object is not
+counted as missed, and no row is prompted for a category with none in view.
+
 Every method is scored by `compute_nocs_map` in the three IoU modes (`exact` is the headline, see
 docs/metrics.md). Only this script reads ground truth.
 """
@@ -46,7 +50,7 @@ from prompose_grasp.errors import InvalidInputError, PromposeError, UnknownNameE
 from prompose_grasp.eval.baselines import obb_baseline
 from prompose_grasp.eval.nocs import IOU_MODES
 from prompose_grasp.eval.report import format_nocs_table
-from prompose_grasp.eval.synthetic import nocs_image_result, nocs_tables
+from prompose_grasp.eval.synthetic import evaluated_objects, nocs_image_result, nocs_tables
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.pointcloud import back_project
 from prompose_grasp.perception.dataset import SyntheticFrame, read_split, scene_frames
@@ -63,9 +67,6 @@ METHODS = ("ours_oracle_mask", "obb_oracle_mask", "ours", "obb", "ours_tracked",
 #: grounded OBB baseline the grounded estimate's masks.
 _ORACLE_ROWS = frozenset({"ours_oracle_mask", "obb_oracle_mask"})
 _GROUNDED_ROWS = frozenset({"ours", "obb"})
-
-#: Objects with fewer valid depth pixels than this are skipped by every method alike (still counted as GT).
-_MIN_POINTS = 50
 
 
 def _percentiles_ms(samples_s: list[float]) -> dict[str, float]:
@@ -138,8 +139,8 @@ def run_estimator_benchmark(
             )
         priors: dict[int, ShapePrior] = {}
         for k, sf in enumerate(frames):
-            gts = [(synsets.index(o.category), o.pose, o.handle_visible)
-                   for o in sf.ground_truth_objects if o.category in categories]  # fmt: skip
+            evaluated = evaluated_objects(sf, categories)
+            gts = [(synsets.index(o.category), o.pose, o.handle_visible) for o in evaluated]
             for o in sf.ground_truth_objects:
                 symmetry[o.category] = o.symmetry
             preds = _frame_predictions(estimator, sf, categories, synsets, candidates, priors, times, wanted)
@@ -205,14 +206,11 @@ def _frame_predictions(
     preds: dict[str, list[tuple[int, Pose9D, float]]] = defaultdict(list)
     frame = sf.frame
     oracle = not _ORACLE_ROWS.isdisjoint(wanted)
-    for obj in sf.ground_truth_objects if oracle else ():
-        if obj.category not in categories:
-            continue
+    evaluated = evaluated_objects(sf, categories)
+    for obj in evaluated if oracle else ():
         cls = synsets.index(obj.category)
         oracle_mask = sf.ground_truth_instance_mask == obj.instance_id
         points = back_project(frame.depth_m, frame.intrinsics, mask=oracle_mask)
-        if len(points) < _MIN_POINTS:
-            continue
         t0 = time.perf_counter()
         est = estimator.estimate(frame, obj.prompt, prior=priors.get(obj.instance_id), mask=oracle_mask)
         times["oracle_mask_estimate"].append(time.perf_counter() - t0)
@@ -221,7 +219,7 @@ def _frame_predictions(
         t0 = time.perf_counter()
         preds["obb_oracle_mask"].append((cls, obb_baseline(points, est.support_plane), 1.0))
         times["obb"].append(time.perf_counter() - t0)
-    present = sorted({o.category for o in sf.ground_truth_objects} & set(categories))
+    present = sorted({o.category for o in evaluated})
     for category in present if not _GROUNDED_ROWS.isdisjoint(wanted) else ():
         cls = synsets.index(category)
         t0 = time.perf_counter()
@@ -237,10 +235,11 @@ def _frame_predictions(
 def _track_scene(
     estimator: ProMPose, frames: list[SyntheticFrame], categories: list[str], times: dict[str, list[float]]
 ) -> list[list[tuple[int, Pose9D, float]]]:
-    """Track each distinct test-category prompt of the scene through its frames; predictions per frame."""
+    """Track each distinct prompt of the scene's ground truth (in any frame) through its frames; predictions
+    per frame."""
     synsets = ["BG", *categories]
-    prompts = sorted({o.prompt: o.category for o in frames[0].ground_truth_objects
-                      if o.category in categories}.items())  # fmt: skip
+    in_view = {o.prompt: o.category for sf in frames for o in evaluated_objects(sf, categories)}
+    prompts = sorted(in_view.items())
     per_frame: list[list[tuple[int, Pose9D, float]]] = [[] for _ in frames]
     for prompt, category in prompts:
         stream = estimator.track((sf.frame for sf in frames), prompt)
@@ -263,16 +262,12 @@ def _track_scene(
 def _track_scene_oracle_mask(
     estimator: ProMPose, frames: list[SyntheticFrame], categories: list[str], times: dict[str, list[float]]
 ) -> list[list[tuple[int, Pose9D, float]]]:
-    """Track every test-category object of the first frame from its ground-truth mask (first frame only)."""
+    """Track every ground-truth object of the first frame from its ground-truth mask (first frame only)."""
     synsets = ["BG", *categories]
     per_frame: list[list[tuple[int, Pose9D, float]]] = [[] for _ in frames]
     first = frames[0]
-    for obj in first.ground_truth_objects:
-        if obj.category not in categories:
-            continue
+    for obj in evaluated_objects(first, categories):
         oracle_mask = first.ground_truth_instance_mask == obj.instance_id
-        if len(back_project(first.frame.depth_m, first.frame.intrinsics, mask=oracle_mask)) < _MIN_POINTS:
-            continue
         stream = estimator.track((sf.frame for sf in frames), obj.prompt, mask=oracle_mask)
         confidence = 1.0
         for k in range(len(frames)):

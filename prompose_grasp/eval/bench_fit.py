@@ -4,7 +4,8 @@ Run from the repository root on a dataset written by `python -m sim.dataset` (do
 
     python -m prompose_grasp.eval.bench_fit --data DIR [--split test] [--json out.json]
 
-Per frame and per object of the split's categories, with the ground-truth instance mask (the *oracle mask*,
+Per frame and per object of the split's categories in view (the standard protocol's ground truth, at least 64
+depth pixels: `eval.synthetic.evaluated_objects`), with the ground-truth instance mask (the *oracle mask*,
 named so: it isolates the fit from grounding):
 
 - points: the masked depth back-projected with the frame's intrinsics;
@@ -45,7 +46,7 @@ import numpy as np
 
 from prompose_grasp.eval.baselines import obb_baseline
 from prompose_grasp.eval.report import write_report_json
-from prompose_grasp.eval.synthetic import nocs_image_result, nocs_tables
+from prompose_grasp.eval.synthetic import evaluated_objects, nocs_image_result, nocs_tables
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import back_project
 from prompose_grasp.geometry.pose9d import Pose9D
@@ -57,7 +58,6 @@ from prompose_grasp.perception.grounding.types import GroundingConfig, SupportPl
 
 log = logging.getLogger(__name__)
 
-_MIN_POINTS = 50  # objects with fewer masked depth points get no prediction (they stay as missed GT)
 _HANDLE_MIN_PIXELS = 20
 
 
@@ -133,10 +133,8 @@ def run(
             up = None if support is None else support.normal_cam
             gts: list[tuple[int, Pose9D, bool]] = []
             preds: dict[str, list[tuple[int, Pose9D]]] = {m: [] for m in methods}
-            for obj in (o.meta for o in sf.ground_truth_objects):
+            for obj in (o.meta for o in evaluated_objects(sf, categories)):
                 cat = obj["category"]
-                if cat not in categories:
-                    continue
                 sym_by_cat[cat] = obj["symmetry"]
                 cls = synsets.index(cat)
                 gt = Pose9D(obj["R"], obj["t"], obj["size"])
@@ -144,9 +142,7 @@ def run(
                     plane_err_deg.append(math.degrees(math.acos(min(1.0, abs(float(gt.R[:, 1] @ up))))))
                 obj_mask = mask == obj["id"]  # oracle mask
                 pts = back_project(depth, intr, obj_mask)
-                gts.append((cls, gt, _handle_visible(obj, pts) if len(pts) else True))
-                if len(pts) < _MIN_POINTS:
-                    continue
+                gts.append((cls, gt, _handle_visible(obj, pts)))
                 prompt = obj["prompt"]
                 t0 = time.perf_counter()
                 prior = priors.get(prompt)
@@ -255,7 +251,7 @@ def format_report(report: dict[str, Any]) -> str:
     plane_err = report["plane_error_deg"]
     lines = [
         f"data {report['data']} split {report['split']}: {report['frames']} frames, "
-        f"{report['gt_objects']} GT objects, {report['predicted_objects']} with >= {_MIN_POINTS} points "
+        f"{report['gt_objects']} GT objects, {report['predicted_objects']} predicted "
         f"(oracle masks); support plane error vs GT up: median {plane_err['median']:.2f} deg, "
         f"max {plane_err['max']:.2f} deg",
     ]

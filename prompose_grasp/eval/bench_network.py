@@ -4,9 +4,10 @@ network's evaluation and the paper's Table 2 ablations).
     python -m prompose_grasp.eval.bench_network --data DIR --weights full=A.pt --weights no_temporal=B.pt \
         [--split test] [--max-frames N] [--no-fit] [--json out.json]
 
-Per frame and object of the split's categories, with the ground-truth instance mask (the *oracle mask*, named
-so: every method sees the same points, grounding is left out), online (each frame sees only itself and the
-frames before it):
+Per frame and object of the split's categories in view (the standard protocol's ground truth, at least 64
+depth pixels: `eval.synthetic.evaluated_objects`), with the ground-truth instance mask (the *oracle mask*,
+named so: every method sees the same points, grounding is left out), online (each frame sees only itself and
+the frames before it):
 
 - `fit`: `fit_pose(points, prior, support_plane_cam=plane)`, the embedded default (cold, every frame);
 - `net:NAME`: the network of checkpoint NAME on the window of the object's last `window` frames ending at this
@@ -35,7 +36,7 @@ import numpy as np
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.eval.bench_fit import support_plane
 from prompose_grasp.eval.report import write_report_json
-from prompose_grasp.eval.synthetic import nocs_image_result, nocs_tables
+from prompose_grasp.eval.synthetic import evaluated_objects, nocs_image_result, nocs_tables
 from prompose_grasp.geometry.pointcloud import back_project
 from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.perception.dataset import read_split, scene_frames
@@ -45,7 +46,6 @@ from prompose_grasp.perception.network.pose_head import MaskedFrame, NetworkPose
 
 log = logging.getLogger(__name__)
 
-_MIN_POINTS = 50  # as bench_fit: objects with fewer masked depth points get no prediction (missed GT)
 _COLS = ("3D25", "3D50", "3D75", "5deg2cm", "5deg5cm", "10deg2cm", "10deg5cm")
 _MODES = ("exact", "aligned", "nocs")
 
@@ -96,16 +96,12 @@ def run(
             up = None if support is None else support.normal_cam
             gts: list[tuple[int, Pose9D, bool]] = []
             preds: dict[str, list[tuple[int, Pose9D]]] = {m: [] for m in methods}
-            for obj in sf.ground_truth_objects:
-                if obj.category not in categories:
-                    continue
+            for obj in evaluated_objects(sf, categories):
                 sym_by_cat[obj.category] = obj.symmetry
                 cls = synsets.index(obj.category)
                 gts.append((cls, obj.pose, obj.handle_visible))
                 mask = sf.ground_truth_instance_mask == obj.instance_id  # oracle mask
                 pts = back_project(frame.depth_m, frame.intrinsics, mask)
-                if len(pts) < _MIN_POINTS:
-                    continue
                 masked = MaskedFrame(frame.rgb, frame.depth_m, frame.intrinsics, mask)
                 prior = priors.get(obj.prompt)
                 if prior is None:
@@ -120,7 +116,7 @@ def run(
                     seen.append(head.prepare(masked))
                     pose = head.predict(seen, obj.prompt, prior.points)[-1]
                     times[f"net:{name}"].append(time.perf_counter() - t0)
-                    if pose is None:  # cannot happen with >= _MIN_POINTS points; kept as a miss
+                    if pose is None:  # cannot happen with a ground truth's >= 64 points; kept as a miss
                         continue
                     preds[f"net:{name}"].append((cls, pose))
                     if with_fit and name in refined:
