@@ -33,7 +33,8 @@ def test_only_objects_seen_on_64_depth_pixels_are_ground_truth():
         intrinsics=CameraIntrinsics(50.0, 50.0, w / 2, h / 2, w, h),
         timestamp_s=0.0,
     )
-    objects = (_object(1, "can"), _object(2, "can"), _object(3, "camera"), _object(4, "can"), _object(5, "mug"))
+    categories = {1: "can", 2: "can", 3: "camera", 4: "can", 5: "mug"}
+    objects = tuple(_object(i, c) for i, c in categories.items())
     sf = SyntheticFrame("scene", 0, frame, mask, objects)
 
     assert MIN_GT_DEPTH_PIXELS == 64
