@@ -8,10 +8,13 @@ so a neighbour touching the box is left out), and the fit is warm-started from i
 
 Fusion: the points of the last `window` frames are kept and each new frame's fit sees their union, so the
 sides seen earlier keep constraining the box and the amodal size becomes observable as the camera moves (the
-paper's claim for its temporal window). With `T_base_cam` the views are kept in the base frame: the object is
-taken as still in the world, so the fused cloud is independent of the poses estimated on the way (views kept
-in the object frame follow the estimate that placed them: an error of the first frame is baked into every
-later view and the fused cloud then confirms it). Without `T_base_cam` the object frame is the only common
+paper's claim for its temporal window). The fused fit takes this frame's camera view (`SceneView` of the
+selected pixels), as the first frame's fit did: prior points this camera could not have seen (beyond the
+image border, behind an occluder) do not pull, while every view's points pull the prior towards them. With
+`T_base_cam` the views are kept in the base frame: the object is taken as still in the world, so the fused
+cloud is independent of the poses estimated on the way (views kept in the object frame follow the estimate
+that placed them: an error of the first frame is baked into every later view and the fused cloud then
+confirms it). Without `T_base_cam` the object frame is the only common
 frame. The size of a rigid object does not change: it is smoothed in log space like translation and rotation.
 
 The current frame's own points decide whether the fused fit holds: their RMS distance to the fitted prior
@@ -227,13 +230,16 @@ class Tracker:
         support = plane_vector(plane)
         old_views = np.concatenate([np.zeros((0, 3)), *self._fused_views(frame, pred)])
         cloud = np.concatenate([current, old_views])
-        fit = fit_pose(cloud, self.prior, fit_config, init=pred, support_plane_cam=support)
+        # this camera's view: the prior points it could not have seen (off the image, behind an occluder) do
+        # not pull; the earlier views' points still pull the prior towards them
+        seen = SceneView(frame.depth_m, frame.intrinsics, mask)
+        fit = fit_pose(cloud, self.prior, fit_config, init=pred, support_plane_cam=support, scene=seen)
         # this frame's RMS to the fit, for the checks below; NaN when the fit changes and it must be redone
         rms = self._rms(current, fit.pose) if self._views else math.nan
         if rms > cfg.max_rms_m:
             # the window disagrees with this frame: the object moved in the world; start the window again
             cloud, old_views = current, np.zeros((0, 3))
-            fit = fit_pose(current, self.prior, fit_config, init=pred, support_plane_cam=support)
+            fit = fit_pose(current, self.prior, fit_config, init=pred, support_plane_cam=support, scene=seen)
             rms = math.nan
             self._views.clear()
             self.window_restarts += 1
