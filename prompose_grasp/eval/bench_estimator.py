@@ -53,7 +53,7 @@ from prompose_grasp.eval.report import format_nocs_table
 from prompose_grasp.eval.synthetic import evaluated_objects, nocs_image_result, nocs_tables
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.pointcloud import back_project
-from prompose_grasp.perception.dataset import SyntheticFrame, read_split, scene_frames
+from prompose_grasp.perception.dataset import GroundTruthObject, SyntheticFrame, read_split, scene_frames
 from prompose_grasp.perception.estimator import Estimate, ProMPose
 from prompose_grasp.perception.priors import ShapePrior
 
@@ -143,7 +143,7 @@ def run_estimator_benchmark(
             gts = [(synsets.index(o.category), o.pose, o.handle_visible) for o in evaluated]
             for o in sf.ground_truth_objects:
                 symmetry[o.category] = o.symmetry
-            preds = _frame_predictions(estimator, sf, categories, synsets, candidates, priors, times, wanted)
+            preds = _frame_predictions(estimator, sf, evaluated, synsets, candidates, priors, times, wanted)
             for m, per_frame in preds_tracked.items():
                 preds[m] = per_frame[k]
             for m in wanted:
@@ -195,18 +195,18 @@ def _track_confidence(est: Estimate, previous: float) -> float:
 def _frame_predictions(
     estimator: ProMPose,
     sf: SyntheticFrame,
-    categories: list[str],
+    evaluated: list[GroundTruthObject],
     synsets: list[str],
     candidates: int,
     priors: dict[int, ShapePrior],
     times: dict[str, list[float]],
     wanted: tuple[str, ...] = METHODS,
 ) -> dict[str, list[tuple[int, Pose9D, float]]]:
-    """The single-frame rows of `wanted` (an oracle-mask or grounded pair is computed together)."""
+    """The single-frame rows of `wanted` (an oracle-mask or grounded pair is computed together) for the
+    frame's ground truth `evaluated` (`evaluated_objects`)."""
     preds: dict[str, list[tuple[int, Pose9D, float]]] = defaultdict(list)
     frame = sf.frame
     oracle = not _ORACLE_ROWS.isdisjoint(wanted)
-    evaluated = evaluated_objects(sf, categories)
     for obj in evaluated if oracle else ():
         cls = synsets.index(obj.category)
         oracle_mask = sf.ground_truth_instance_mask == obj.instance_id

@@ -14,8 +14,8 @@ image border, behind an occluder) do not pull, while every view's points pull th
 `T_base_cam` the views are kept in the base frame: the object is taken as still in the world, so the fused
 cloud is independent of the poses estimated on the way (views kept in the object frame follow the estimate
 that placed them: an error of the first frame is baked into every later view and the fused cloud then
-confirms it). Without `T_base_cam` the object frame is the only common
-frame. The size of a rigid object does not change: it is smoothed in log space like translation and rotation.
+confirms it). Without `T_base_cam` the object frame is the only common frame. The size of a rigid object
+does not change: it is smoothed in log space like translation and rotation.
 
 The current frame's own points decide whether the fused fit holds: their RMS distance to the fitted prior
 surface above `max_rms_m` means the object moved against the world (then the current frame alone is fitted
