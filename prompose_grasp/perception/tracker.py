@@ -17,6 +17,12 @@ that placed them: an error of the first frame is baked into every later view and
 confirms it). Without `T_base_cam` the object frame is the only common frame. The size of a rigid object
 does not change: it is smoothed in log space like translation and rotation.
 
+Re-fits: when the view has turned, a mug's handle shows that the track does not explain, or the selection
+runs out of the tracked box (the object is larger than the track: its first view was cut), the frame also
+gets a cold fit, and the better of the two by `Tracker._score` goes on. That cold fit sees the object as the
+grounder segments this frame: the candidate for the prompt that holds most of the tracked selection
+(`Tracker._redetected`), so all of the object, none of a neighbour beside it.
+
 The current frame's own points decide whether the fused fit holds: their RMS distance to the fitted prior
 surface above `max_rms_m` means the object moved against the world (then the current frame alone is fitted
 and the window restarts from it) or the track is lost (too few points near the prediction, or the single-frame
@@ -35,7 +41,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial import cKDTree
 
-from prompose_grasp.errors import InvalidInputError
+from prompose_grasp.errors import InvalidInputError, PromposeError
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import outline_corrected_points, valid_depth_mask
@@ -79,7 +85,8 @@ class TrackerConfig:
             with the handle hidden, a flipped box seen edge-on) is corrected once the new views
             show what the first did not, and a laptop's screen opening is chosen again. A mug's handle that
             the track does not explain starts one too, once per view (`Tracker._protrusion_missed`: a camera
-            that holds still never turns). 180 turns both off (a warm start cannot jump between basins).
+            that holds still never turns), and so does a selection that runs out of the tracked box
+            (`outgrown_margin_m`). 180 turns all re-fits off (a warm start cannot jump between basins).
         compare_points: observed points of this frame on which the two candidates are compared.
         refit_gain: the re-fit replaces the tracked fit when its score is below this times the tracked
             one's (hysteresis: the tracked fit has the window's views behind it).
@@ -90,6 +97,13 @@ class TrackerConfig:
             to measure the residual.
         fit_iterations: Gauss-Newton iterations of a tracked frame's warm fit (the prediction is close).
         fit_points, fit_prior_points: observed (of the fused cloud) and prior points of that warm fit.
+        outgrown_margin_m, outgrown_share: a frame whose selected points lie outside the tracked box by more
+            than the margin [m] (beyond the depth noise at the faces), at least this share of them, gets a
+            re-fit too (`Tracker._outgrown`, once per view): the object is larger than the track, which grows
+            only by the selection's `roi_margin_m` a frame otherwise.
+        redetect_share: a re-fit fits the grounder's candidate for the prompt holding more than this share of
+            the tracked selection (`Tracker._redetected`), when there is one: the whole object, segmented.
+            1 turns re-detection off.
     """
 
     window: int = 16
@@ -109,6 +123,9 @@ class TrackerConfig:
     fit_iterations: int = 8
     fit_points: int = 384
     fit_prior_points: int = 512
+    outgrown_margin_m: float = 0.01
+    outgrown_share: float = 0.05
+    redetect_share: float = 0.5
 
     def __post_init__(self) -> None:
         if self.window < 1 or self.points_per_view < 8 or self.min_points < 4:
@@ -168,7 +185,8 @@ class Tracker:
         self._rng = np.random.default_rng(0)
         self._prior_cache: tuple[ShapePrior, np.ndarray] | None = None
         self._refit_view: np.ndarray | None = None  # unit object -> camera direction at the last re-fit
-        self._protrusion_refit_done = False  # a re-fit for an unexplained handle ran at this view
+        # a re-fit without a turn (for an unexplained handle or an outgrown box) ran at this view
+        self._protrusion_refit_done = False
         self.reinitialisations = 0
         self.window_restarts = 0
         self.refits = 0
@@ -248,7 +266,8 @@ class Tracker:
         turned = self._refit_view is not None and float(view @ self._refit_view) < math.cos(
             math.radians(cfg.refit_angle_deg)
         )
-        if turned or self._protrusion_missed(frame, pred, plane):
+        outgrown = self._outgrown(current, pred)
+        if turned or outgrown or self._protrusion_missed(frame, pred, plane):
             self._refit_view = view
             self._protrusion_refit_done = not turned
             self.refits += 1
@@ -258,6 +277,11 @@ class Tracker:
             refit_mask, refit_points = self._select(frame, pred, plane, stride=1, any_turn=True)
             if len(refit_points) < cfg.min_points:
                 refit_mask, refit_points = mask, points
+            # better still, the object as the grounder segments this frame: all of it (the selection ends a
+            # few cm past the tracked box) and none of a neighbour the handle's circle reaches
+            detected = self._redetected(frame, refit_mask)
+            if detected is not None:
+                refit_mask, refit_points = detected, self._observed(frame, detected)
             scene = SceneView(frame.depth_m, frame.intrinsics, refit_mask)
             cold = self._refit(refit_points, support, scene)
             if self._score(refit_points, old_views, cold, support, scene) < cfg.refit_gain * self._score(
@@ -309,6 +333,38 @@ class Tracker:
         )
         missed = int(np.count_nonzero(~np.isfinite(d))) * stride2
         return missed >= fcfg.handle_min_points
+
+    def _outgrown(self, points_cam: np.ndarray, pred: Pose9D) -> bool:
+        """True when at least `outgrown_share` of this frame's selected points lie outside the predicted box
+        by more than `outgrown_margin_m`: the object goes on past the box (a track started on a view that
+        the image border or an occluder cut; the selection reaches only `roi_margin_m` past the box). Once
+        per view, as `_protrusion_missed` (a re-fit that did not win would be run again every frame)."""
+        if self._protrusion_refit_done or self.config.refit_angle_deg >= 180.0:
+            return False  # (re-fits off: `refit_angle_deg` 180)
+        local = np.abs((points_cam - pred.t) @ pred.R) - 0.5 * pred.size
+        outside = np.any(local > self.config.outgrown_margin_m, axis=1)
+        return bool(np.count_nonzero(outside) >= self.config.outgrown_share * len(points_cam))
+
+    def _redetected(self, frame: RGBDFrame, selection: np.ndarray) -> np.ndarray | None:
+        """The mask of the grounder's candidate for the prompt that holds most of `selection` (the tracked
+        pixels, (H, W) bool), when it holds more than `redetect_share` of them; else None (no candidate, or
+        the grounder cannot score this prompt)."""
+        n = int(np.count_nonzero(selection))
+        if n == 0 or self.config.redetect_share >= 1.0:
+            return None
+        try:
+            grounding = self.estimator.grounder.ground(
+                frame.rgb, frame.depth_m, frame.intrinsics, self.prompt
+            )
+        except PromposeError as exc:
+            logger.info("re-detection of %r skipped: %s", self.prompt, exc)
+            return None
+        best, best_share = None, self.config.redetect_share
+        for candidate in grounding.candidates:
+            share = np.count_nonzero(candidate.mask & selection) / n
+            if share > best_share:
+                best, best_share = candidate.mask, share
+        return None if best is None else np.asarray(best, dtype=bool)
 
     def _refit(self, points: np.ndarray, support: np.ndarray | None, scene: SceneView | None) -> FitResult:
         """A cold multi-hypothesis fit of this frame's points (the estimator's own fit settings, and the
