@@ -140,9 +140,13 @@ class TrackerConfig:
             raise InvalidInputError("TrackerConfig needs 0 < refit_angle_deg <= 180 and compare_points >= 8")
         if not 0.0 < self.blend <= 1.0:
             raise InvalidInputError(f"TrackerConfig.blend must be in (0, 1], got {self.blend}")
-        for name in ("roi_margin_m", "surface_margin_m", "plane_clearance_m", "max_rms_m"):
+        margins = ("roi_margin_m", "surface_margin_m", "plane_clearance_m", "max_rms_m", "outgrown_margin_m")
+        for name in margins:
             if not getattr(self, name) > 0:
                 raise InvalidInputError(f"TrackerConfig.{name} must be > 0")
+        for name in ("outgrown_share", "redetect_share"):
+            if not 0.0 < getattr(self, name) <= 1.0:
+                raise InvalidInputError(f"TrackerConfig.{name} must be in (0, 1], got {getattr(self, name)}")
 
 
 def _plane_in(plane: SupportPlane, T_new_old: np.ndarray) -> SupportPlane:
@@ -186,7 +190,7 @@ class Tracker:
         self._prior_cache: tuple[ShapePrior, np.ndarray] | None = None
         self._refit_view: np.ndarray | None = None  # unit object -> camera direction at the last re-fit
         # a re-fit without a turn (for an unexplained handle or an outgrown box) ran at this view
-        self._protrusion_refit_done = False
+        self._unturned_refit_done = False
         self.reinitialisations = 0
         self.window_restarts = 0
         self.refits = 0
@@ -219,7 +223,7 @@ class Tracker:
         self._plane = est.support_plane
         self._in_base = frame.T_base_cam is not None
         self._refit_view = self._view_direction(frame, est.pose)
-        self._protrusion_refit_done = False
+        self._unturned_refit_done = False
         self._accept(frame, est.pose, self._observed(frame, est.mask))
         return replace(est, timings_ms=dict(est.timings_ms), frame_index=self._frame_index)
 
@@ -269,7 +273,7 @@ class Tracker:
         outgrown = self._outgrown(current, pred)
         if turned or outgrown or self._protrusion_missed(frame, pred, plane):
             self._refit_view = view
-            self._protrusion_refit_done = not turned
+            self._unturned_refit_done = not turned
             self.refits += 1
             # the re-fit sees this frame as the first frame's fit did: every pixel, and round a mug's body
             # wherever its handle is (near the tracked pose's surface only, a handle that the track has
@@ -317,7 +321,7 @@ class Tracker:
         not explain: at least `FitConfig.handle_min_points` pixels lie near the prior turned about the
         body's axis, outside the predicted body by `FitConfig.handle_margin_m`, and farther than
         `surface_margin_m` from the predicted surface. Once per view (cleared when the view turns)."""
-        if self._protrusion_refit_done or self.prior is None or self.config.refit_angle_deg >= 180.0:
+        if self._unturned_refit_done or self.prior is None or self.config.refit_angle_deg >= 180.0:
             return False  # (re-fits off: `refit_angle_deg` 180)
         axis = round_body_axis(self.prior)
         if axis is None:
@@ -339,7 +343,7 @@ class Tracker:
         by more than `outgrown_margin_m`: the object goes on past the box (a track started on a view that
         the image border or an occluder cut; the selection reaches only `roi_margin_m` past the box). Once
         per view, as `_protrusion_missed` (a re-fit that did not win would be run again every frame)."""
-        if self._protrusion_refit_done or self.config.refit_angle_deg >= 180.0:
+        if self._unturned_refit_done or self.config.refit_angle_deg >= 180.0:
             return False  # (re-fits off: `refit_angle_deg` 180)
         local = np.abs((points_cam - pred.t) @ pred.R) - 0.5 * pred.size
         outside = np.any(local > self.config.outgrown_margin_m, axis=1)

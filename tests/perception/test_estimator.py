@@ -105,6 +105,15 @@ def test_bad_input_is_refused_with_clear_errors(estimator, frame):
         estimator.estimate((frame.rgb, frame.depth_m), "the can")
 
 
+@pytest.mark.parametrize(
+    "bad",
+    [{"outgrown_share": 0.0}, {"outgrown_share": 1.5}, {"redetect_share": -0.1}, {"outgrown_margin_m": 0.0}],
+)
+def test_tracker_config_refuses_shares_and_margins_out_of_range(bad):
+    with pytest.raises(InvalidInputError, match=next(iter(bad))):
+        TrackerConfig(**bad)
+
+
 def test_track_reuses_the_prior_and_stays_on_the_object(estimator, frame, scene):
     # Three noisy renders of the same static scene: tracking must not re-ground after the first frame and
     # must stay on the box.
@@ -391,7 +400,7 @@ def test_slow_camera_refits_once_the_view_has_turned_and_turns_the_track_back():
     tracker._pose = _on_the_other_side(tracker.update(frame0, mask=mask0).pose)
     # as if the unexplained-handle re-fit had run at this view already (it would turn the track back on
     # frame 1, in the update): only the turned view starts the re-fit here
-    tracker._protrusion_refit_done = True
+    tracker._unturned_refit_done = True
     refits, taken, errors = [0], [0], [180.0]  # per frame, from frame 0
     for frame, _ in frames[1:]:
         est = tracker.update(frame)
