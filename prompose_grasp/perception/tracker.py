@@ -265,7 +265,7 @@ class Tracker:
             rms = math.nan
             self._views.clear()
             self.window_restarts += 1
-        jumped = False
+        jumped, grounding_ms = False, 0.0
         view = self._view_direction(frame, fit.pose)
         turned = self._refit_view is not None and float(view @ self._refit_view) < math.cos(
             math.radians(cfg.refit_angle_deg)
@@ -283,7 +283,7 @@ class Tracker:
                 refit_mask, refit_points = mask, points
             # better still, the object as the grounder segments this frame: all of it (the selection ends a
             # few cm past the tracked box) and none of a neighbour the handle's circle reaches
-            detected = self._redetected(frame, refit_mask)
+            detected, grounding_ms = self._redetected(frame, refit_mask)
             if detected is not None:
                 refit_mask, refit_points = detected, self._observed(frame, detected)
             scene = SceneView(frame.depth_m, frame.intrinsics, refit_mask)
@@ -302,7 +302,7 @@ class Tracker:
         # a jump to another basin is not smoothed (half-way between two yaws is neither)
         pose = fit.pose if jumped else _blend(pred, fit.pose, cfg.blend)
         self._accept(frame, pose, current)
-        pose_ms = 1e3 * (time.perf_counter() - t0)
+        pose_ms = 1e3 * (time.perf_counter() - t0) - grounding_ms  # the re-detection is grounding
         ys, xs = np.nonzero(mask)
         return Estimate(
             pose=pose,
@@ -311,7 +311,7 @@ class Tracker:
             score=float("nan"),
             prior=self.prior,
             fit_loss=float(fit.loss),
-            timings_ms={"grounding": 0.0, "prior": 0.0, "pose": pose_ms},
+            timings_ms={"grounding": grounding_ms, "prior": 0.0, "pose": pose_ms},
             frame_index=self._frame_index,
             support_plane=plane,
         )
@@ -349,26 +349,28 @@ class Tracker:
         outside = np.any(local > self.config.outgrown_margin_m, axis=1)
         return bool(np.count_nonzero(outside) >= self.config.outgrown_share * len(points_cam))
 
-    def _redetected(self, frame: RGBDFrame, selection: np.ndarray) -> np.ndarray | None:
+    def _redetected(self, frame: RGBDFrame, selection: np.ndarray) -> tuple[np.ndarray | None, float]:
         """The mask of the grounder's candidate for the prompt that holds most of `selection` (the tracked
-        pixels, (H, W) bool), when it holds more than `redetect_share` of them; else None (no candidate, or
-        the grounder cannot score this prompt)."""
+        pixels, (H, W) bool), when it holds more than `redetect_share` of them, else None (no candidate, or
+        the grounder cannot score this prompt); and the grounding's time [ms] (0 when it did not run)."""
         n = int(np.count_nonzero(selection))
         if n == 0 or self.config.redetect_share >= 1.0:
-            return None
+            return None, 0.0
+        t0 = time.perf_counter()
         try:
             grounding = self.estimator.grounder.ground(
                 frame.rgb, frame.depth_m, frame.intrinsics, self.prompt
             )
         except PromposeError as exc:
             logger.info("re-detection of %r skipped: %s", self.prompt, exc)
-            return None
+            return None, 1e3 * (time.perf_counter() - t0)
+        grounding_ms = 1e3 * (time.perf_counter() - t0)
         best, best_share = None, self.config.redetect_share
         for candidate in grounding.candidates:
             share = np.count_nonzero(candidate.mask & selection) / n
             if share > best_share:
                 best, best_share = candidate.mask, share
-        return None if best is None else np.asarray(best, dtype=bool)
+        return (None if best is None else np.asarray(best, dtype=bool)), grounding_ms
 
     def _refit(self, points: np.ndarray, support: np.ndarray | None, scene: SceneView | None) -> FitResult:
         """A cold multi-hypothesis fit of this frame's points (the estimator's own fit settings, and the

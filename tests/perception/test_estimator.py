@@ -301,14 +301,17 @@ def test_a_track_started_on_a_cut_view_grows_to_the_whole_object(redetect):
     config = TrackerConfig() if redetect else TrackerConfig(redetect_share=1.0)
     tracker = Tracker(ProMPose(Grounder(), PriorLibrary()), "box", prior=prior, config=config)
     first = _cut_at_column(*views[0], 135)
-    size_errors, centre_errors = [], []
+    size_errors, centre_errors, grounding_ms = [], [], []
     for k, (frame, mask) in enumerate([first, *views[1:]]):
         est = tracker.update(frame, mask=mask if k == 0 else None)
         gt = gt_world.transformed(np.linalg.inv(frame.T_base_cam))
         size_errors.append(float(np.max(np.abs(est.pose.size / gt.size - 1.0))))
         centre_errors.append(float(np.linalg.norm(est.pose.t - gt.t)))
+        grounding_ms.append(est.timings_ms["grounding"])
     assert size_errors[0] > 0.15  # the cut first view (measured 0.19)
     assert tracker.refits_taken >= 1 and tracker.reinitialisations == 0
+    # a tracked frame's timings name the re-detection as grounding (the user's mask started the track)
+    assert (max(grounding_ms[1:]) > 0.0) == redetect
     if redetect:
         # every extent within 6 % and the centre within 1 cm from frame 1 on (measured <= 5 %, <= 3 mm: the
         # noise and the grazing-angle band, as in the orbit tests)
