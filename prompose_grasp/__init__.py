@@ -16,6 +16,7 @@ The curated public API lives here; subpackages hold the rest:
 from importlib.metadata import version as _version
 
 from prompose_grasp.errors import (
+    AmbiguousObjectError,
     CameraError,
     DeviceNotConnectedError,
     InvalidInputError,
@@ -46,6 +47,7 @@ from prompose_grasp.robot import (
 __version__ = _version("prompose-grasp")
 
 __all__ = [
+    "AmbiguousObjectError",
     "Arm",
     "CameraError",
     "CommandValidator",

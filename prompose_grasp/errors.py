@@ -55,6 +55,28 @@ class ObjectNotFoundError(PromposeError):
     """No object in the frame matches the prompt (grounding found no candidate)."""
 
 
+class AmbiguousObjectError(PromposeError, LookupError):
+    """Several objects in the frame fit the prompt about equally well, so none is chosen.
+
+    Attributes:
+        prompt: the prompt as given.
+        estimates: the estimates of the objects that fit (best first); each has its `probability` and its
+            measured `attributes`, from which a caller can describe them to the user.
+    """
+
+    def __init__(self, prompt: str, estimates: Iterable[object], message: str | None = None):
+        self.prompt = prompt
+        self.estimates = tuple(estimates)
+        super().__init__(
+            message
+            or f"{len(self.estimates)} objects fit {prompt!r} about equally well; name the one you mean "
+            "more narrowly (colour, size or position)"
+        )
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
 class NoFeasibleGrasp(PromposeError):
     """Every grasp candidate was rejected; `rejected` counts the candidates per reason ("stroke", "ik",
     "collision_object", ...), and the message lists them."""

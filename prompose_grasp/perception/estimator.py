@@ -26,12 +26,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import trimesh
 
-from prompose_grasp.errors import InvalidInputError, ObjectNotFoundError
+from prompose_grasp.errors import AmbiguousObjectError, InvalidInputError, ObjectNotFoundError
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.pointcloud import outline_corrected_points, valid_depth_mask
 from prompose_grasp.perception.fit import FitConfig, SceneView, fit_pose
 from prompose_grasp.perception.grounding import Candidate, Grounder, GroundingResult, SupportPlane
 from prompose_grasp.perception.grounding.plane import plane_under_object
+from prompose_grasp.perception.grounding.types import CandidateAttributes
 from prompose_grasp.perception.priors import PriorLibrary, ShapePrior
 from prompose_grasp.robot.interfaces import RGBDFrame
 
@@ -80,6 +81,13 @@ class Estimate:
             occluded (the hidden part of the box comes from the prior alone) or when the box outgrows its
             points; another view then helps. NaN on tracked updates after the first frame, which rest on the
             window's fused views rather than one mask.
+        probability: the grounder's calibrated probability that this is the object the prompt names
+            (`Candidate.probability`; 1 for a mask handed in, NaN where not computed).
+        contenders: how many objects fit the prompt about equally well in this frame
+            (`GroundingResult.contenders`): 1 clear, >= 2 ambiguous (`estimate` then raises
+            `AmbiguousObjectError`), 0 nothing fits; -1 not judged.
+        attributes: what the grounder measured of the object (colour, size class, shape family, extents),
+            or None (a mask handed in).
     """
 
     pose: Pose9D
@@ -92,6 +100,9 @@ class Estimate:
     frame_index: int = 0
     support_plane: SupportPlane | None = None
     coverage: float = math.nan
+    probability: float = math.nan
+    contenders: int = -1
+    attributes: CandidateAttributes | None = None
 
     @cached_property
     def mesh_cam(self) -> trimesh.Trimesh:
@@ -211,12 +222,16 @@ class ProMPose:
         Raises:
             InvalidInputError: bad frame, prompt or mask.
             ObjectNotFoundError: nothing in the frame could be the object.
+            AmbiguousObjectError: several objects fit the prompt about equally well (its `estimates`, best
+                first, say which); a narrower prompt tells them apart.
         """
         if mask is not None:
             return self._estimate_masked(frame, prompt, mask, prior)
-        estimates = self.estimate_all(frame, prompt, prior=prior, max_objects=1)
-        if not estimates:
+        estimates = self.estimate_all(frame, prompt, prior=prior, max_objects=1, fit_contenders=True)
+        if not estimates or estimates[0].contenders == 0:
             raise ObjectNotFoundError(f"no object in the frame matches {prompt!r}")
+        if estimates[0].contenders >= 2:
+            raise AmbiguousObjectError(prompt, estimates[: estimates[0].contenders])
         return estimates[0]
 
     def estimate_all(
@@ -226,11 +241,17 @@ class ProMPose:
         prior: ShapePrior | None = None,
         max_objects: int | None = None,
         min_score_ratio: float = 0.0,
+        fit_contenders: bool = False,
     ) -> list[Estimate]:
         """Estimates of the best `max_objects` candidates, best first; an empty list when nothing matches.
 
+        Every estimate carries its `probability` and the frame's `contenders` (ambiguity is the caller's
+        to act on here; `estimate` raises for it).
+
         `min_score_ratio`: candidates whose grounding score is below this fraction of the best candidate's are
         not fitted (a caller that drops them anyway saves their fit, ~0.3 s each on 2 cores).
+        `fit_contenders`: also fit every contender beyond `max_objects` (so that an ambiguous answer can show
+        each of them).
         """
         t_total = time.perf_counter()
         prompt = _check_prompt(prompt)
@@ -239,7 +260,10 @@ class ProMPose:
         grounding = self.grounder.ground(frame.rgb, frame.depth_m, frame.intrinsics, prompt)
         grounding_ms = _ms(t0)
         estimates: list[Estimate] = []
-        candidates = grounding.candidates[: max_objects or self.config.max_objects]
+        n = max_objects or self.config.max_objects
+        if fit_contenders:
+            n = max(n, grounding.contenders)
+        candidates = grounding.candidates[:n]
         if candidates:
             floor = min_score_ratio * float(candidates[0].score)
             candidates = tuple(c for c in candidates if float(c.score) >= floor)
@@ -303,9 +327,9 @@ class ProMPose:
             )
         t0 = time.perf_counter()
         plane = self.grounder.support_plane(frame.depth_m, frame.intrinsics)
-        grounding = GroundingResult(prompt=prompt, candidates=(), support_plane=plane)
+        grounding = GroundingResult(prompt=prompt, candidates=(), support_plane=plane, contenders=1)
         ys, xs = np.nonzero(m)
-        candidate = Candidate(m, np.array([xs.min(), ys.min(), xs.max(), ys.max()]), 1.0)
+        candidate = Candidate(m, np.array([xs.min(), ys.min(), xs.max(), ys.max()]), 1.0, probability=1.0)
         grounding_ms = _ms(t0)
         t0 = time.perf_counter()
         prior = prior or self._generate_prior(prompt, points, grounding)
@@ -391,6 +415,9 @@ class ProMPose:
             frame_index=frame_index,
             support_plane=support,
             coverage=fit.coverage,
+            probability=float(candidate.probability),
+            contenders=int(grounding.contenders),
+            attributes=candidate.attributes,
         )
 
     def _network_pose(

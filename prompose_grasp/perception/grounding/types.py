@@ -199,12 +199,15 @@ class Candidate:
         box_xyxy: (4,) int64 tight pixel box (x0, y0, x1, y1), inclusive of both corners' pixels.
         score: how well it matches the prompt; higher is better (in (0, 1) for the embedded grounder).
         attributes: measured attributes (None for grounders that do not measure them, e.g. the DINO adapter).
+        probability: calibrated probability that this candidate is the object the prompt names (the
+            candidates' probabilities sum to at most 1; `grounding.confidence`); NaN where not computed.
     """
 
     mask: np.ndarray
     box_xyxy: np.ndarray
     score: float
     attributes: CandidateAttributes | None = None
+    probability: float = float("nan")
 
     def __post_init__(self) -> None:
         m = np.asarray(self.mask)
@@ -216,6 +219,7 @@ class Candidate:
         object.__setattr__(self, "mask", _frozen(m))
         object.__setattr__(self, "box_xyxy", _frozen(b.astype(np.int64)))
         object.__setattr__(self, "score", float(self.score))
+        object.__setattr__(self, "probability", float(self.probability))
 
 
 @dataclass(frozen=True)
@@ -238,12 +242,30 @@ class GroundingResult:
         candidates: best first (descending score).
         support_plane: the plane objects stand on, or None (no plane found, or the grounder does not fit one).
         timing: stage wall times.
+        contenders: how many of the best candidates fit the prompt about equally well
+            (`grounding.confidence`): 0 when none fits the words, 1 when one clearly wins, 2 or more when the
+            prompt does not tell them apart (`ambiguous`). -1 where the grounder does not judge it.
     """
 
     prompt: str
     candidates: tuple[Candidate, ...]
     support_plane: SupportPlane | None
     timing: GroundingTiming = field(default_factory=GroundingTiming)
+    contenders: int = -1
+
+    @property
+    def ambiguous(self) -> bool:
+        """Two or more candidates fit the prompt about equally well: none should be chosen for it."""
+        return self.contenders >= 2
+
+    @property
+    def margin(self) -> float:
+        """The best candidate's probability minus the runner-up's (the best's alone with one candidate;
+        NaN without candidates or probabilities)."""
+        if not self.candidates:
+            return float("nan")
+        p = [c.probability for c in self.candidates[:2]]
+        return p[0] - (p[1] if len(p) > 1 else 0.0)
 
     @property
     def best(self) -> Candidate | None:
