@@ -6,9 +6,10 @@ the camera's noise model.
 `python -m sim pick --scene FILE --command "..." --out DIR --seed N [--video]`: one closed-loop language
 pick-and-place episode (`sim.pick`), writing DIR/summary.json, overlay_0.png and optionally episode.mp4.
 
-`python -m sim bench-pick --scenario tabletop_household|logistics_pallet|real_meshes --episodes N
-[--oracle-mask] [--real-meshes] [--place] [--json OUT]`: the closed-loop success rate over seeded episodes
-(`sim.bench_pick`).
+`python -m sim bench-pick --scenario tabletop_household|logistics_pallet|logistics_palletise|real_meshes|
+lookalikes --episodes N [--oracle-mask] [--real-meshes] [--place] [--prompts colour+name|name] [--json OUT]`:
+the closed-loop success rate over seeded episodes, with wrong-object successes and ambiguous refusals
+accounted (`sim.bench_pick`).
 """
 
 from __future__ import annotations

@@ -13,14 +13,28 @@ Scenarios (`SCENARIOS`):
 - `logistics_pallet`: the depalletising cell; "put the brown carton on the conveyor";
 - `logistics_palletise`: the palletising cell; "put the brown carton on the pallet" (the next pattern slot);
 - `real_meshes` (or `--real-meshes` with the tabletop): the tabletop with 5 of the real household meshes of
-  `../shared/data/objects` (geometry nothing here was tuned on) drawn per seed; fails clearly when absent.
+  `../shared/data/objects` (geometry nothing here was tuned on) drawn per seed, in distinct colours; fails
+  clearly when absent;
+- `lookalikes` (`sim.lookalikes`): 3-4 products of one kind (boxes, cans, bottles at real product sizes) and
+  1-2 others; even seeds name a product the look-alikes differ from in size or colour (`implied`: pick that
+  one), odd seeds a product of which there are two equal copies (`not_implied`: the right outcome is
+  `ambiguous`).
+
+`--prompts colour+name | name`: the command says the object's scene prompt with its colour ("the red
+banana", default) or its bare name ("the banana"; the scene keeps its colours). `lookalikes` always says the
+product's name.
 
 `--oracle-mask` hands the estimator the simulator's segmentation of the target (named oracle: it replaces
 grounding only; the pose fit, grasping and control are the product's): the difference to a run without it
 separates perception failures from grasping failures.
 
-Failure reasons are the `PickOutcome` reasons, plus `false_success` (the loop reported success but the object
-was not lifted / not at the target in ground truth) and `crash:<exception>` (an unexpected exception).
+Each row is accounted by `sim.bench_accounting.judge` (ground truth, after the run): `success`;
+`wrong_object_success` (the loop reported success, another scene object was lifted / placed and not the
+named one); `false_success` (the loop reported success, nothing was lifted / placed); `ambiguous`, judged
+`correct` when at least two scene objects fit the words by the scenario's catalogue, else `wrong`;
+`wrong_object` (the loop caught holding another object and put it back); every other `PickOutcome` reason;
+`crash:<exception>` (an unexpected exception). Each row names the target object, the objects the words fit
+and every scene object (name, kind, colour, size).
 """
 
 from __future__ import annotations
@@ -32,7 +46,7 @@ import math
 import sys
 import tempfile
 import time
-from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -40,8 +54,20 @@ import numpy as np
 import yaml
 
 from prompose_grasp.errors import InvalidInputError, ObjectNotFoundError
+from sim.bench_accounting import bare_name, describe_prompt, fitting_objects, judge, tally, tally_by_kind
 
-__all__ = ["SCENARIOS", "OracleMaskEstimator", "real_mesh_scene", "run_benchmark", "wilson_interval"]
+__all__ = [
+    "PROMPT_STYLES",
+    "SCENARIOS",
+    "EpisodePlan",
+    "OracleMaskEstimator",
+    "format_report",
+    "real_mesh_plan",
+    "real_mesh_scene",
+    "run_benchmark",
+    "summarise",
+    "wilson_interval",
+]
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +75,9 @@ SCENES_DIR = Path(__file__).resolve().parent / "scenes"
 #: Where the real meshes live: ../shared/data/objects next to the repository (development data, never
 #: committed).
 REAL_MESHES_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "objects"
-SCENARIOS = ("tabletop_household", "logistics_pallet", "logistics_palletise", "real_meshes")
+SCENARIOS = ("tabletop_household", "logistics_pallet", "logistics_palletise", "real_meshes", "lookalikes")
+#: What a command says of the object: its scene prompt with the colour ("the red banana") or the bare name.
+PROMPT_STYLES = ("colour+name", "name")
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
@@ -128,25 +156,58 @@ def _load_real_meshes() -> list[dict[str, Any]]:
     return [o for o in items if (REAL_MESHES_DIR / o["dir"] / "model.obj").is_file()]
 
 
-def real_mesh_scene(seed: int, n_objects: int = 5) -> tuple[dict[str, Any], str]:
-    """The tabletop scene with `n_objects` real household meshes drawn per seed (distinct colours), and the
-    prompt of the one to pick. Meshes are z-up in metres (objects.json)."""
+#: The real meshes' colours, in the order the drawn meshes take them (distinct within a scene).
+REAL_MESH_PALETTE = (
+    ("red", [0.8, 0.12, 0.1, 1.0]),
+    ("green", [0.1, 0.55, 0.2, 1.0]),
+    ("blue", [0.15, 0.3, 0.8, 1.0]),
+    ("yellow", [0.85, 0.75, 0.1, 1.0]),
+    ("orange", [0.9, 0.45, 0.1, 1.0]),
+    ("purple", [0.5, 0.2, 0.6, 1.0]),
+)
+
+
+@dataclass
+class EpisodePlan:
+    """One seed's episode, by construction (ground truth for the evaluation only; the loop sees `command`).
+
+    Attributes:
+        scene: the scene file. command: what is said.
+        target_object: the scene object the command names, None when the words fit several or are resolved
+            by the episode's own evaluation (logistics).
+        fitting_objects: every scene object the words fit (`sim.bench_accounting.fitting_objects`), None when
+            known only once the scene is built (the objects of a scene file's stack).
+        objects: the scene's objects with their catalogue facts {name, kind, colour, size_m, prompt, ...},
+            None when they come from the built scene.
+        lookalike_kind: `lookalikes` only: "implied" | "not_implied".
+    """
+
+    scene: Path
+    command: str
+    target_object: str | None = None
+    fitting_objects: list[str] | None = None
+    objects: list[dict[str, Any]] | None = None
+    lookalike_kind: str | None = None
+
+
+#: The facts of a scene object a row records (`scene_objects`).
+_FACT_KEYS = ("name", "kind", "group", "colour", "size_m", "prompt")
+
+
+def real_mesh_plan(
+    seed: int, n_objects: int = 5, prompts: str = "colour+name"
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(scene document, plan) of the tabletop with `n_objects` real household meshes drawn per seed (distinct
+    colours) and the one to pick. `prompts`: "colour+name" says "red banana", "name" the bare "banana"
+    (objects.json's prompt); the scene's colours are the same either way. Meshes are z-up in metres."""
     rng = np.random.default_rng(seed)
     items = _load_real_meshes()
     chosen = [items[i] for i in rng.choice(len(items), size=min(n_objects, len(items)), replace=False)]
     doc = yaml.safe_load((SCENES_DIR / "tabletop_household.yaml").read_text())
-    palette = [
-        ("red", [0.8, 0.12, 0.1, 1.0]),
-        ("green", [0.1, 0.55, 0.2, 1.0]),
-        ("blue", [0.15, 0.3, 0.8, 1.0]),
-        ("yellow", [0.85, 0.75, 0.1, 1.0]),
-        ("orange", [0.9, 0.45, 0.1, 1.0]),
-        ("purple", [0.5, 0.2, 0.6, 1.0]),
-    ]
-    objects = []
+    objects, facts = [], []
     region = {"centre_m": [-0.15, -0.05], "half_extents_m": [0.4, 0.3]}  # the tabletop file's region
     for k, item in enumerate(chosen):
-        colour, rgba = palette[k % len(palette)]
+        colour, rgba = REAL_MESH_PALETTE[k % len(REAL_MESH_PALETTE)]
         objects.append(
             {
                 "name": item["name"],
@@ -156,30 +217,119 @@ def real_mesh_scene(seed: int, n_objects: int = 5) -> tuple[dict[str, Any], str]
                 "place": {"support": "table", "region": region},
             }
         )
+        ex, ey, ez = (float(v) for v in item["extents_m"])  # file axes, z up
+        facts.append(
+            {
+                "name": item["name"],
+                "kind": item["prompt"],
+                "colour": colour,
+                "size_m": [ex, ez, ey],  # canonical: y up
+                "prompt": f"{colour} {item['prompt']}",
+            }
+        )
     doc["objects"] = objects
     doc["name"] = "tabletop_real_meshes"
-    return doc, objects[int(rng.integers(len(objects)))]["prompt"]
+    k = int(rng.integers(len(objects)))
+    said = facts[k]["prompt"] if prompts == "colour+name" else facts[k]["kind"]
+    return doc, {"said": said, "target_object": facts[k]["name"], "objects": facts}
 
 
-def _episode_plan(scenario: str, seed: int, place: bool, real_meshes: bool) -> tuple[Path, str, str | None]:
-    """(scene file, command, the scene object's prompt the command names or None) for one seed."""
+def real_mesh_scene(seed: int, n_objects: int = 5) -> tuple[dict[str, Any], str]:
+    """The tabletop scene with `n_objects` real household meshes drawn per seed (distinct colours), and the
+    prompt of the one to pick ("red banana"). Meshes are z-up in metres (objects.json)."""
+    doc, plan = real_mesh_plan(seed, n_objects)
+    return doc, plan["said"]
+
+
+def resolve_prompts(scenario: str, prompts: str | None) -> str:
+    """The prompt style of a run: `lookalikes` always says the product's name ("name": its commands are part
+    of the scenario); the others default to "colour+name"."""
+    if prompts is not None and prompts not in PROMPT_STYLES:
+        raise InvalidInputError(f"unknown prompt style {prompts!r}; known: {', '.join(PROMPT_STYLES)}")
+    if scenario == "lookalikes":
+        if prompts == "colour+name":
+            raise InvalidInputError(
+                "the lookalikes scenario says the product's name only (its not_implied commands leave the "
+                "colour out on purpose); run it without --prompts or with --prompts name"
+            )
+        return "name"
+    return prompts or "colour+name"
+
+
+def _temp_scene(doc: dict[str, Any], stem: str) -> Path:
+    path = Path(tempfile.mkdtemp(prefix="bench_pick_")) / f"{stem}.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def _episode_plan(
+    scenario: str, seed: int, place: bool, real_meshes: bool, prompts: str = "colour+name"
+) -> EpisodePlan:
+    """The scene, the command and what it means (by construction) for one seed."""
+
+    def say(words: str) -> str:
+        return f"put the {words} in the bin" if place else f"pick up the {words}"
+
+    if scenario == "lookalikes":
+        from sim.lookalikes import lookalike_scene
+
+        doc, lp = lookalike_scene(seed)
+        command = f"put the {lp['said']} in the bin" if place else lp["command"]
+        return EpisodePlan(
+            _temp_scene(doc, f"lookalikes_{seed}"),
+            command,
+            lp["target_object"],
+            list(lp["fitting_objects"]),
+            [{k: o[k] for k in _FACT_KEYS} for o in lp["objects"]],
+            lp["lookalike_kind"],
+        )
     if scenario == "real_meshes" or real_meshes:
-        doc, prompt = real_mesh_scene(seed)
-        path = Path(tempfile.mkdtemp(prefix="bench_pick_")) / f"real_{seed}.yaml"
-        path.write_text(yaml.safe_dump(doc))
-        verb = f"put the {prompt} in the bin" if place else f"pick up the {prompt}"
-        return path, verb, prompt
+        doc, rp = real_mesh_plan(seed, prompts=prompts)
+        command = say(rp["said"])
+        return EpisodePlan(
+            _temp_scene(doc, f"real_{seed}"),
+            command,
+            rp["target_object"],
+            fitting_objects(command, rp["objects"]),
+            rp["objects"],
+        )
     path = SCENES_DIR / f"{scenario}.yaml"
     if scenario == "tabletop_household":
         doc = yaml.safe_load(path.read_text())
-        prompts = [o["prompt"] for o in doc["objects"]]
-        prompt = prompts[int(np.random.default_rng(seed).integers(len(prompts)))]
-        return path, (f"put the {prompt} in the bin" if place else f"pick up the {prompt}"), prompt
+        facts = []
+        for o in doc["objects"]:
+            colour, kind = describe_prompt(o["prompt"])
+            facts.append(
+                {"name": o["name"], "kind": kind, "colour": colour, "size_m": None, "prompt": o["prompt"]}
+            )
+        k = int(np.random.default_rng(seed).integers(len(facts)))
+        words = facts[k]["prompt"] if prompts == "colour+name" else bare_name(facts[k]["prompt"])
+        command = say(words)
+        return EpisodePlan(path, command, facts[k]["name"], fitting_objects(command, facts), facts)
+    words = "brown carton" if prompts == "colour+name" else "carton"
     if scenario == "logistics_pallet":
-        return path, "put the brown carton on the conveyor", None
+        return EpisodePlan(path, f"put the {words} on the conveyor")
     if scenario == "logistics_palletise":
-        return path, "put the brown carton on the pallet", None
+        return EpisodePlan(path, f"put the {words} on the pallet")
     raise InvalidInputError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
+
+
+def _scene_objects(plan: EpisodePlan, evaluated: list[dict[str, Any]] | None) -> list[dict[str, Any]]:
+    """Every scene object with its facts: the plan's catalogue (kind, colour) merged with the built scene's
+    prompt and ground-truth size; a scene file's objects take kind and colour from their prompt."""
+    known = {o["name"]: o for o in plan.objects or []}
+    if not evaluated:
+        return [dict(o) for o in plan.objects or []]
+    out = []
+    for e in evaluated:
+        o = dict(known.get(e["name"], {}))
+        if "kind" not in o:
+            o["colour"], o["kind"] = describe_prompt(str(e.get("prompt") or e["name"]))
+        o.update(name=e["name"], prompt=e.get("prompt"))
+        if e.get("size_m") is not None:
+            o["size_m"] = e["size_m"]
+        out.append(o)
+    return out
 
 
 def run_benchmark(
@@ -192,46 +342,99 @@ def run_benchmark(
     out_dir: str | Path | None = None,
     progress: bool = True,
     json_out: str | Path | None = None,
+    prompts: str | None = None,
 ) -> dict[str, Any]:
     """Run `episodes` seeded episodes (seeds seed0 .. seed0 + episodes - 1) and summarise them; with
-    `json_out` the report so far is rewritten after every episode (a long run can be stopped)."""
+    `json_out` the report so far is rewritten after every episode (a long run can be stopped).
+
+    `prompts`: "colour+name" (default; "pick up the red banana") or "name" (the bare object name, "pick up
+    the banana"; the scene keeps its colours); `lookalikes` always says the product's name."""
     from prompose_grasp.perception.estimator import ProMPose
     from sim.pick import run_episode
 
     if episodes < 1:
         raise InvalidInputError(f"episodes must be >= 1, got {episodes}")
+    if scenario not in SCENARIOS:
+        raise InvalidInputError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
+    style = resolve_prompts("real_meshes" if real_meshes else scenario, prompts)
     estimator = ProMPose.default()
     rows = []
     t_all = time.perf_counter()
+    meta = {
+        "scenario": "real_meshes" if real_meshes else scenario,
+        "oracle_mask": oracle_mask,
+        "place": place,
+        "prompts": style,
+        "seed0": seed0,
+        "episodes": episodes,
+    }
     for i in range(episodes):
         seed = seed0 + i
-        scene, command, _ = _episode_plan(scenario, seed, place, real_meshes)
+        plan = _episode_plan(scenario, seed, place, real_meshes, style)
+        command = plan.command
         t0 = time.perf_counter()
-        row: dict[str, Any] = {"seed": seed, "command": command}
+        row: dict[str, Any] = {"seed": seed, "command": command, "prompts": style}
+        if plan.lookalike_kind is not None:
+            row["lookalike_kind"] = plan.lookalike_kind
+        row.update(
+            target_object=plan.target_object,
+            fitting_objects=plan.fitting_objects,
+            scene_objects=_scene_objects(plan, None),
+        )
         try:
             wrap = None
             if oracle_mask:
+                oracle_target = plan.target_object or (plan.fitting_objects or [None])[0]
 
-                def wrap(world, camera, _command=command):
+                def wrap(world, camera, _command=command, _target=oracle_target):
                     from sim.pick import target_name_for
 
-                    return OracleMaskEstimator(estimator, world, camera, target_name_for(world, _command))
+                    name = _target or target_name_for(world, _command)
+                    return OracleMaskEstimator(estimator, world, camera, name)
 
             ep_out = None if out_dir is None else Path(out_dir) / f"episode_{seed:04d}"
+            targets = plan.fitting_objects or None
             result = run_episode(
-                scene, command, ep_out, seed=seed, estimator=estimator, estimator_wrapper=wrap
+                plan.scene,
+                command,
+                ep_out,
+                seed=seed,
+                estimator=estimator,
+                estimator_wrapper=wrap,
+                targets=targets,
             )
             s = result.summary
-            reason = s["outcome"]["reason"]
-            if not s["success"]:
-                reason = "false_success" if reason == "success" else reason
+            ev = s["evaluation"]
+            scene_objects = _scene_objects(plan, ev.get("scene_objects"))
+            fitting = (
+                plan.fitting_objects
+                if plan.fitting_objects is not None
+                else fitting_objects(command, scene_objects)
+            )
+            loop_reason = s["outcome"]["reason"]
+            parsed = s["outcome"].get("command") or {}
+            verdict = judge(
+                loop_reason,
+                bool(s["success"]),
+                fitting,
+                ev.get("lifted_objects", []),
+                ev.get("placed_objects"),
+                place=parsed.get("action", "pick") in ("place", "stack"),
+            )
             row.update(
-                success=bool(s["success"]),
-                reason="success" if s["success"] else reason,
+                success=verdict["success"],
+                reason=verdict["reason"],
+                loop_reason=loop_reason,
+                ambiguous=verdict["ambiguous"],
+                wrong_objects=verdict["wrong_objects"],
+                fitting_objects=fitting,
+                scene_objects=scene_objects,
                 message=s["outcome"]["message"],
-                object=s["evaluation"]["object"],
+                object=ev["object"],
+                lifted_objects=ev.get("lifted_objects"),
+                placed_objects=ev.get("placed_objects"),
                 lift_height_m=s["lift_height_m"],
-                inside_target=s["evaluation"].get("inside_target"),
+                inside_target=ev.get("inside_target"),
                 sim_time_s=s["sim_time_s"],
                 wall_time_s=s["timings_s"]["episode_wall"],
                 timings_s=s["timings_s"],
@@ -239,7 +442,7 @@ def run_benchmark(
                 attempt_results=[
                     f"{a['method']}: {a['result']} ({a['message']})" for a in s["outcome"]["attempts"]
                 ],
-                moved=s["evaluation"].get("moved"),
+                moved=ev.get("moved"),
                 estimate_centre_error_m=s.get("estimate_centre_error_m"),
                 estimate_size_m=None if s["estimate"] is None else s["estimate"]["size"],
                 ground_truth_size_m=None if s["ground_truth"] is None else s["ground_truth"]["size"],
@@ -249,72 +452,98 @@ def run_benchmark(
             row.update(
                 success=False,
                 reason=f"crash:{type(exc).__name__}",
+                loop_reason=None,
+                ambiguous=None,
                 message=str(exc)[:300],
                 sim_time_s=float("nan"),
                 wall_time_s=time.perf_counter() - t0,
             )
         rows.append(row)
         if json_out is not None:
-            partial = _summary(rows, scenario, oracle_mask, real_meshes, place, seed0, episodes, t_all)
+            partial = summarise(rows, meta, time.perf_counter() - t_all)
             Path(json_out).parent.mkdir(parents=True, exist_ok=True)
             Path(json_out).write_text(json.dumps(partial, indent=2))
         if progress:
             n_ok = sum(r["success"] for r in rows)
             print(
-                f"[{i + 1}/{episodes}] seed {seed} {row['reason']:18s} {command!r} "
+                f"[{i + 1}/{episodes}] seed {seed} {row['reason']:20s} {command!r} "
                 f"({row['wall_time_s']:.1f} s wall) -> {n_ok}/{len(rows)}",
                 flush=True,
             )
-    return _summary(rows, scenario, oracle_mask, real_meshes, place, seed0, episodes, t_all)
+    return summarise(rows, meta, time.perf_counter() - t_all)
 
 
-def _summary(
-    rows: list[dict[str, Any]],
-    scenario: str,
-    oracle_mask: bool,
-    real_meshes: bool,
-    place: bool,
-    seed0: int,
-    episodes: int,
-    t_all: float,
-) -> dict[str, Any]:
-    """The report of the episodes run so far."""
-    n_ok = sum(r["success"] for r in rows)
-    lo, hi = wilson_interval(n_ok, len(rows))
+def summarise(rows: list[dict[str, Any]], meta: dict[str, Any], total_wall_s: float = 0.0) -> dict[str, Any]:
+    """The report of the (accounted) rows run so far; `meta`: scenario, oracle_mask, place, prompts, seed0,
+    episodes (planned). Pure: the tests feed it hand-built rows."""
+    n = len(rows)
+    n_ok = sum(bool(r["success"]) for r in rows)
+    lo, hi = wilson_interval(n_ok, n)
     sims = [r["sim_time_s"] for r in rows if math.isfinite(r.get("sim_time_s", float("nan")))]
-    walls = [r["wall_time_s"] for r in rows]
+    walls = [r["wall_time_s"] for r in rows if "wall_time_s" in r]
+    seed0 = int(meta.get("seed0", 0))
+    counts = tally(rows)
     report = {
-        "scenario": "real_meshes" if real_meshes else scenario,
-        "oracle_mask": oracle_mask,
-        "place": place,
-        "episodes": len(rows),
-        "episodes_planned": episodes,
-        "seeds": [seed0, seed0 + len(rows) - 1],
+        "scenario": meta.get("scenario"),
+        "oracle_mask": bool(meta.get("oracle_mask", False)),
+        "place": bool(meta.get("place", False)),
+        "prompts": meta.get("prompts", "colour+name"),
+        "episodes": n,
+        "episodes_planned": int(meta.get("episodes", n)),
+        "seeds": [seed0, seed0 + n - 1],
         "successes": n_ok,
-        "success_rate": n_ok / len(rows),
+        "success_rate": n_ok / n if n else 0.0,
         "wilson95": [lo, hi],
-        "reasons": dict(Counter(r["reason"] for r in rows if not r["success"])),
+        **counts,
+        "by_kind": tally_by_kind(rows),
         "mean_cycle_sim_s": float(np.mean(sims)) if sims else None,
-        "mean_cycle_wall_s": float(np.mean(walls)),
-        "realtime_factor": (float(np.sum(sims)) / float(np.sum(walls))) if sims else None,
-        "total_wall_s": time.perf_counter() - t_all,
+        "mean_cycle_wall_s": float(np.mean(walls)) if walls else None,
+        "realtime_factor": (float(np.sum(sims)) / float(np.sum(walls))) if sims and walls else None,
+        "total_wall_s": total_wall_s,
         "rows": rows,
     }
     return report
 
 
+def _pct(entry: dict[str, Any]) -> str:
+    lo, hi = entry["wilson95"]
+    rate = entry["rate"]
+    return f"{100 * (rate or 0.0):.0f} % (Wilson 95 %: {100 * lo:.0f}-{100 * hi:.0f} %)"
+
+
 def format_report(r: dict[str, Any]) -> str:
+    """The printed summary; the first line carries the success rate and the wrong-object successes."""
     lo, hi = r["wilson95"]
     tags = (" (oracle mask)" if r["oracle_mask"] else "") + (" (place)" if r["place"] else "")
+    tags += f" [prompts {r.get('prompts', 'colour+name')}]"
     sim_s = r["mean_cycle_sim_s"] or float("nan")
+    amb = r["ambiguous"]
     lines = [
         f"scenario {r['scenario']}{tags}: {r['successes']}/{r['episodes']} = "
         f"{100 * r['success_rate']:.1f} % (Wilson 95 %: {100 * lo:.1f}-{100 * hi:.1f} %), "
-        f"seeds {r['seeds'][0]}-{r['seeds'][1]}",
-        f"  mean cycle: {sim_s:.1f} s sim, {r['mean_cycle_wall_s']:.1f} s wall "
-        f"(sim/wall {r['realtime_factor'] or float('nan'):.2f})",
-        "  failures: " + (", ".join(f"{k} {v}" for k, v in sorted(r["reasons"].items())) or "none"),
+        f"wrong-object successes {r['wrong_object_success']}, seeds {r['seeds'][0]}-{r['seeds'][1]}",
+        f"  ambiguous {amb['total']} (correct {amb['correct']}, wrong {amb['wrong']}); wrong_object (caught, "
+        f"put back) {r['wrong_object']}; false_success {r['false_success']}",
+        "  other failures: " + (", ".join(f"{k} {v}" for k, v in r["other_failures"].items()) or "none"),
     ]
+    for kind, e in r.get("by_kind", {}).items():
+        if kind == "implied":
+            lines.append(
+                f"  implied ({e['episodes']}): top-1 {e['top1']['count']}/{e['episodes']} = "
+                f"{_pct(e['top1'])}; "
+                f"wrong picks {e['wrong_pick']['count']}/{e['episodes']}; ambiguous {e['ambiguous']}"
+            )
+        else:
+            lines.append(
+                f"  not_implied ({e['episodes']}): ambiguous {e['ambiguous']['count']}/{e['episodes']} = "
+                f"{_pct(e['ambiguous'])}; picked one without asking {e['picked_one']}; "
+                f"wrong picks {e['wrong_pick']['count']}/{e['episodes']}"
+            )
+    if r["mean_cycle_wall_s"] is not None:
+        lines.append(
+            f"  mean cycle: {sim_s:.1f} s sim, {r['mean_cycle_wall_s']:.1f} s wall "
+            f"(sim/wall {r['realtime_factor'] or float('nan'):.2f})"
+        )
     return "\n".join(lines)
 
 
@@ -335,6 +564,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--real-meshes", action="store_true", help="the tabletop with ../shared/data/objects meshes"
     )
     p.add_argument("--place", action="store_true", help="tabletop: 'put the X in the bin' instead of a pick")
+    p.add_argument(
+        "--prompts",
+        choices=PROMPT_STYLES,
+        default=None,
+        help="what the command says: colour+name ('the red banana', default) or name ('the banana'; the "
+        "scene keeps its colours); lookalikes always says the product name",
+    )
     p.add_argument("--json", dest="json_out", default=None, help="write the report here")
     p.add_argument("--out", default=None, help="also write each episode's summary and overlay under DIR")
 
@@ -350,6 +586,7 @@ def run_from_args(args: argparse.Namespace) -> int:
         place=args.place,
         out_dir=args.out,
         json_out=args.json_out,
+        prompts=getattr(args, "prompts", None),
     )
     print(format_report(report))
     if args.json_out:

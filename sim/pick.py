@@ -134,15 +134,49 @@ def target_name_for(world, command_text: str) -> str:
     return max(same, key=key).name
 
 
-def evaluate_target(world, name: str, T_world_obj_start: np.ndarray) -> dict[str, Any]:
-    """Evaluation only (ground truth): how far object `name` rose and moved since the start."""
+def evaluate_target(
+    world, name: str, T_world_obj_start: np.ndarray, start: dict[str, np.ndarray] | None = None
+) -> dict[str, Any]:
+    """Evaluation only (ground truth): how far object `name` rose and moved since the start.
+
+    With `start` ({object name: T_world_obj at the start}, every scene object) also `lifted_objects`: the
+    names of every scene object whose centre rose at least `MIN_LIFT_M`, the named one or not (a claimed
+    success that lifted only others lifted the wrong object)."""
     T_now = world.T_world_obj(name)
-    return {
+    ev: dict[str, Any] = {
         "object": name,
         "lift_height_m": float(T_now[2, 3] - T_world_obj_start[2, 3]),
         "start_world_m": T_world_obj_start[:3, 3].tolist(),
         "end_world_m": T_now[:3, 3].tolist(),
     }
+    if start is not None:
+        ev["lifted_objects"] = lifted_objects(world, start)
+    return ev
+
+
+def lifted_objects(world, start: dict[str, np.ndarray]) -> list[str]:
+    """Evaluation only (ground truth): names of the scene objects whose centre rose >= `MIN_LIFT_M` since
+    `start` ({name: T_world_obj}), in scene order."""
+    return [
+        o.name
+        for o in world.objects
+        if o.name in start and float(world.T_world_obj(o.name)[2, 3] - start[o.name][2, 3]) >= MIN_LIFT_M
+    ]
+
+
+def _evaluated_target(world, targets: list[str], start: dict[str, np.ndarray]) -> str:
+    """Evaluation only: of the objects the command means (known by construction), the one that rose most
+    (moved most on a tie within 1 mm: none rose), so a pick of either of two look-alikes is judged on the
+    one picked."""
+    unknown = [t for t in targets if t not in start]
+    if unknown:
+        raise InvalidInputError(f"targets {unknown} are not scene objects; known: {sorted(start)}")
+
+    def key(n: str) -> tuple[float, float]:
+        d = world.T_world_obj(n)[:3, 3] - start[n][:3, 3]
+        return (round(float(d[2]), 3), float(np.linalg.norm(d)))
+
+    return max(targets, key=key)
 
 
 def _patterns(spec) -> dict[str, PalletPattern]:
@@ -219,6 +253,7 @@ def run_episode(
     camera_wrapper: Callable[[Any], Any] | None = None,
     estimator_wrapper: Callable[[Any, str], Any] | None = None,
     wrist: bool = True,
+    targets: list[str] | None = None,
 ) -> EpisodeResult:
     """Build the scene, run the library's closed loop on it, then evaluate against ground truth.
 
@@ -234,6 +269,13 @@ def run_episode(
             (benchmarks: `sim.bench_pick.OracleMaskEstimator`, named oracle).
         wrist: hand the scene's wrist camera (the first mounted one), if any, to the loop: it looks at the
             target from above before grasping.
+        targets: evaluation only: the scene objects the command means, known by construction (a benchmark's
+            plan; two look-alikes the words do not tell apart are both listed). The one that rose most is
+            judged. Default: found from the command and the scene prompts (`_target_name`).
+
+    The summary's `evaluation` also holds `lifted_objects` (every object that rose >= `MIN_LIFT_M`),
+    `placed_objects` for place commands (every object that ended inside the place target and did not start
+    there), `moved` (objects moved > 1 cm) and `scene_objects` (name, prompt, ground-truth size of each).
     """
     from prompose_grasp.perception.estimator import ProMPose
 
@@ -292,8 +334,20 @@ def run_episode(
             first_world = (
                 world.T_world_base @ np.append(first.pose.transformed(outcome.T_base_cams[0]).t, 1.0)
             )[:3]
-        name = _target_name(world, command, first_world, start)
-        ev = evaluate_target(world, name, start[name])
+        if targets:
+            name = _evaluated_target(world, list(targets), start)
+        else:
+            name = _target_name(world, command, first_world, start)
+        ev = evaluate_target(world, name, start[name], start)
+        sizes = {g.name: g.size_m for g in world.ground_truth(camera)}
+        ev["scene_objects"] = [
+            {
+                "name": o.name,
+                "prompt": o.prompt,
+                "size_m": [round(float(v), 4) for v in sizes[o.name]] if o.name in sizes else None,
+            }
+            for o in world.objects
+        ]
         # Which objects the run moved (> 1 cm): a reported hold whose target did not rise held a neighbour.
         ev["moved"] = {
             o.name: {
@@ -317,6 +371,7 @@ def run_episode(
             gt_cam = Pose9D(T_cam_obj[:3, :3], T_cam_obj[:3, 3], np.asarray(size, dtype=np.float64))
         action = outcome.command.action if outcome.command is not None else None
         success = outcome.success and (lifted if action == "pick" else True)
+        inside_fn = None  # evaluation of a place: world point -> inside the place target
         if (
             action in ("place", "stack")
             and outcome.command is not None
@@ -325,17 +380,18 @@ def run_episode(
             holders = _named_in(world, outcome.command.target_prompt)
             if holders:
                 holder = max(holders, key=lambda o: len(o.prompt))
-                T_h = world.T_world_obj(holder.name)
+                T_h_inv = invert_T(world.T_world_obj(holder.name))
                 size_h = next(g.size_m for g in world.ground_truth(camera) if g.name == holder.name)
-                p = invert_T(T_h) @ np.append(ev["end_world_m"], 1.0)  # holder frame: +y up
-                inside = bool(
-                    abs(p[0]) <= size_h[0] / 2 + 0.01
-                    and abs(p[2]) <= size_h[2] / 2 + 0.01
-                    and -size_h[1] / 2 < p[1] < size_h[1] / 2 + 0.3
-                )
+
+                def inside_fn(p_world, T_h_inv=T_h_inv, size_h=size_h) -> bool:
+                    p = T_h_inv @ np.append(p_world, 1.0)  # holder frame: +y up
+                    return bool(
+                        abs(p[0]) <= size_h[0] / 2 + 0.01
+                        and abs(p[2]) <= size_h[2] / 2 + 0.01
+                        and -size_h[1] / 2 < p[1] < size_h[1] / 2 + 0.3
+                    )
+
                 ev["place_object"] = holder.name
-                ev["inside_target"] = inside
-                success = outcome.success and inside
             else:
                 ev["inside_target"] = None  # the place phrase names no scene object: not judged
                 success = False
@@ -344,10 +400,25 @@ def run_episode(
                 (s for s in world.place_targets.values() if s.kind == outcome.command.target), None
             )
             if support is not None:
-                p = invert_T(support.T_world_surface) @ np.append(ev["end_world_m"], 1.0)
-                inside = bool(np.all(np.abs(p[:2]) <= support.half_extents_xy_m) and -0.01 < p[2] < 0.3)
-                ev["inside_target"] = inside
-                success = outcome.success and inside
+                T_s_inv = invert_T(support.T_world_surface)
+
+                def inside_fn(p_world, T_s_inv=T_s_inv, half=support.half_extents_xy_m) -> bool:
+                    p = T_s_inv @ np.append(p_world, 1.0)
+                    return bool(np.all(np.abs(p[:2]) <= half) and -0.01 < p[2] < 0.3)
+
+        if inside_fn is not None:
+            inside = inside_fn(np.asarray(ev["end_world_m"]))
+            ev["inside_target"] = inside
+            success = outcome.success and inside
+            # Every object that ended inside the place target and did not start there (the holder excluded):
+            # a claimed place whose target is not among them put another object there.
+            ev["placed_objects"] = [
+                o.name
+                for o in world.objects
+                if o.name != ev.get("place_object")
+                and inside_fn(world.T_world_obj(o.name)[:3, 3])
+                and not inside_fn(start[o.name][:3, 3])
+            ]
         timing = arm.timing()
         summary = {
             "scene": str(scene),
