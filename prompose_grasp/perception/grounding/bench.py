@@ -43,6 +43,7 @@ import cv2
 import numpy as np
 
 from prompose_grasp.geometry.camera import CameraIntrinsics
+from prompose_grasp.perception.grounding.confidence import ConfidenceModel, fit_confidence
 from prompose_grasp.perception.grounding.describe import dominant_colour
 from prompose_grasp.perception.grounding.grounder import Grounder
 from prompose_grasp.perception.grounding.language import parse_prompt
@@ -87,10 +88,13 @@ def _test_scenes(data: Path) -> set[str]:
     return set(json.loads(split.read_text()).get("test", {}).get("scenes", []))
 
 
-def _frames(data: Path):
+def _frames(data: Path, images: bool = True):
     for meta_path in sorted(data.glob("*/*-meta.json")):
         stem = str(meta_path)[: -len("-meta.json")]
         meta = json.loads(meta_path.read_text())
+        if not images:
+            yield meta_path.parent.name, None, None, None, None, meta["objects"]
+            continue
         bgr = cv2.imread(f"{stem}-color.png", cv2.IMREAD_COLOR)
         raw = cv2.imread(f"{stem}-depth.png", cv2.IMREAD_UNCHANGED)
         if bgr is None or raw is None:
@@ -119,6 +123,68 @@ def _torch_threads() -> int | None:
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
     return float((a & b).sum() / max(1, (a | b).sum()))
+
+
+def _confidence_record(result: Any, targets: list[np.ndarray]) -> dict[str, Any]:
+    """What calibration needs of one grounding call: every candidate's score total (the inverse of the
+    score's sigmoid(2 (total - 1))), whether it is the prompt's object, the probabilities and contenders."""
+    scores = np.clip([c.score for c in result.candidates], 1e-12, 1.0 - 1e-12)
+    return {
+        "totals": (1.0 + 0.5 * np.log(scores / (1.0 - scores))).tolist(),
+        "right": [any(_iou(c.mask, t) >= HIT_IOU for t in targets) for c in result.candidates],
+        "probabilities": [c.probability for c in result.candidates],
+        "contenders": result.contenders,
+    }
+
+
+def confidence_summary(records: list[dict[str, Any]], bins: int = 10) -> dict[str, Any]:
+    """Reliability of the best candidate's probability and the refusal rates, per prompt kind.
+
+    A present-object prompt is a `pick` when one candidate is chosen (contenders 1): right or wrong
+    (`wrong_pick`); `ambiguous` (contenders >= 2) or `none` (0) are refusals. An absent-object prompt is
+    right when it ends in `none`.
+    """
+    out: dict[str, Any] = {}
+    for kind in sorted({r["kind"] for r in records}):
+        rs = [r for r in records if r["kind"] == kind and "totals" in r]
+        if not rs:
+            continue
+        n = len(rs)
+        picks = [r for r in rs if r["contenders"] == 1]
+        row = {
+            "n": n,
+            "pick_right": sum(bool(r["right"]) and r["right"][0] for r in picks) / n,
+            "wrong_pick": sum(not (r["right"] and r["right"][0]) for r in picks) / n,
+            "ambiguous": sum(r["contenders"] >= 2 for r in rs) / n,
+            "none": sum(r["contenders"] == 0 for r in rs) / n,
+        }
+        if kind != "absent":
+            p = np.array([r["probabilities"][0] if r["probabilities"] else 0.0 for r in rs])
+            ok = np.array([bool(r["right"]) and r["right"][0] for r in rs])
+            edges = np.linspace(0.0, 1.0, bins + 1)
+            idx = np.clip(np.digitize(p, edges) - 1, 0, bins - 1)
+            row["reliability"] = [
+                {
+                    "bin": [float(edges[b]), float(edges[b + 1])],
+                    "n": int(np.sum(idx == b)),
+                    "mean_predicted": float(p[idx == b].mean()) if np.any(idx == b) else None,
+                    "observed": float(ok[idx == b].mean()) if np.any(idx == b) else None,
+                }
+                for b in range(bins)
+            ]
+            row["expected_calibration_error"] = float(
+                sum(np.sum(idx == b) * abs(p[idx == b].mean() - ok[idx == b].mean()) for b in range(bins)
+                    if np.any(idx == b)) / n
+            )  # fmt: skip
+        out[kind] = row
+    return out
+
+
+def _weighted(rows: list[tuple[str, dict[str, Any]]], b: int, key: str) -> float | None:
+    """The count-weighted mean of `key` in bin `b` over several kinds' reliability tables."""
+    cells = [c["reliability"][b] for _, c in rows if c["reliability"][b]["n"]]
+    n = sum(cell["n"] for cell in cells)
+    return sum(cell["n"] * cell[key] for cell in cells) / n if n else None
 
 
 def _summary(records: list[dict[str, Any]]) -> dict[str, Any]:
@@ -160,6 +226,8 @@ def run(data: Path, min_visible_px: int, config: GroundingConfig) -> dict[str, A
     stages: dict[str, list[float]] = {"plane_s": [], "segment_s": [], "describe_s": [], "score_s": []}
     records: list[dict[str, Any]] = []
     test_scenes = _test_scenes(data)
+    # prompts of objects that a frame does not hold (the right answer there is "none"), drawn in turn
+    absent_prompts = sorted({o["prompt"] for *_, objs in _frames(data, images=False) for o in objs})
     warmed = False
     n_frames = 0
     for scene, rgb, depth, mask, K, objects in _frames(data):
@@ -212,8 +280,23 @@ def run(data: Path, min_visible_px: int, config: GroundingConfig) -> dict[str, A
                         "hit": best >= HIT_IOU,
                         "recall": recall,
                         "predicted": predicted,
+                        **_confidence_record(result, targets),
                     }
                 )
+        present = {o["prompt"] for o in objects}
+        for prompt in [p for p in absent_prompts if p not in present][:2]:
+            result = grounder.ground(rgb, depth, K, f"the {prompt}")
+            records.append(
+                {
+                    "scene": scene,
+                    "test_split": scene in test_scenes,
+                    "category": prompt,
+                    "kind": "absent",
+                    "prompt": f"the {prompt}",
+                    **_confidence_record(result, []),
+                }
+            )
+            absent_prompts.append(absent_prompts.pop(absent_prompts.index(prompt)))  # rotate through all
     if not times:
         raise SystemExit(f"no frames with objects of >= {min_visible_px} visible pixels under {data}")
     ms = 1e3 * np.asarray(times)
@@ -239,6 +322,7 @@ def run(data: Path, min_visible_px: int, config: GroundingConfig) -> dict[str, A
         "per_kind_count": {k: v["n"] for k, v in summary.items()},
         "all_scenes": summary,
         "test_split": _summary([r for r in records if r["test_split"]]),
+        "confidence": confidence_summary(records),
         "records": records,
         "machine": {
             "platform": platform.platform(),
@@ -266,6 +350,66 @@ def _print_summary(title: str, summary: dict[str, Any]) -> None:
             )
 
 
+def fit_confidence_from_records(records: list[dict[str, Any]]) -> ConfidenceModel:
+    """The maximum-likelihood `ConfidenceModel` of a benchmark's records (`confidence.fit_confidence`)."""
+    prompts = [
+        (np.asarray(r["totals"]), np.asarray(r["right"], dtype=bool))
+        for r in records
+        if r["kind"] != "absent" and r.get("totals")
+    ]
+    absent = [np.asarray(r["totals"]) for r in records if r["kind"] == "absent" and r.get("totals")]
+    return fit_confidence(prompts, absent)
+
+
+def reliability_svg(reliability: list[dict[str, Any]], title: str) -> str:
+    """A reliability diagram (predicted probability of the best candidate against how often it was right,
+    per bin; bar width ~ the bin's count) as a standalone SVG."""
+    size, pad = 360, 48
+    plot = size - 2 * pad
+
+    def xy(p: float, q: float) -> tuple[float, float]:
+        return pad + p * plot, size - pad - q * plot
+
+    n_max = max((b["n"] for b in reliability), default=1) or 1
+    parts = [
+        f'<svg xmlns="http://www.w3.org/2000/svg" width="{size}" height="{size}" font-family="sans-serif" '
+        'font-size="11">',
+        f'<rect width="{size}" height="{size}" fill="white"/>',
+        f'<text x="{size / 2}" y="20" text-anchor="middle" font-size="13">{title}</text>',
+        '<line x1="{}" y1="{}" x2="{}" y2="{}" stroke="#999" stroke-dasharray="4 3"/>'.format(
+            *xy(0, 0), *xy(1, 1)
+        ),
+        f'<rect x="{pad}" y="{pad}" width="{plot}" height="{plot}" fill="none" stroke="black"/>',
+    ]
+    for b in reliability:
+        if not b["n"]:
+            continue
+        lo, hi = b["bin"]
+        x0, y0 = xy(lo, b["observed"])
+        w = (hi - lo) * plot * (0.3 + 0.7 * b["n"] / n_max)
+        parts.append(
+            f'<rect x="{x0 + ((hi - lo) * plot - w) / 2:.1f}" y="{y0:.1f}" width="{w:.1f}" '
+            f'height="{size - pad - y0:.1f}" fill="#4a7fc1" fill-opacity="0.75"/>'
+        )
+        cx, cy = xy(b["mean_predicted"], b["observed"])
+        parts.append(f'<circle cx="{cx:.1f}" cy="{cy:.1f}" r="3" fill="#c1414a"/>')
+        parts.append(f'<text x="{cx:.1f}" y="{cy - 6:.1f}" text-anchor="middle">{b["n"]}</text>')
+    for v in (0.0, 0.5, 1.0):
+        x, y = xy(v, 0)
+        parts.append(f'<text x="{x}" y="{y + 14}" text-anchor="middle">{v:g}</text>')
+        x, y = xy(0, v)
+        parts.append(f'<text x="{x - 6}" y="{y + 4}" text-anchor="end">{v:g}</text>')
+    parts.append(
+        f'<text x="{size / 2}" y="{size - 12}" text-anchor="middle">predicted probability of the best</text>'
+    )
+    parts.append(
+        f'<text x="14" y="{size / 2}" text-anchor="middle" transform="rotate(-90 14 {size / 2})">'
+        "observed share right</text>"
+    )
+    parts.append("</svg>")
+    return "\n".join(parts) + "\n"
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--data", type=Path, default=None, help="dataset folder (default: generate one)")
@@ -274,7 +418,21 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--min-visible-px", type=int, default=1500)
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
+    parser.add_argument(
+        "--fit-confidence",
+        type=Path,
+        default=None,
+        metavar="RESULTS.json",
+        help="fit the match-probability calibration to an earlier run's records and print it (no grounding)",
+    )
+    parser.add_argument(
+        "--reliability-svg", type=Path, default=None, help="draw the reliability diagram of this run here"
+    )
     args = parser.parse_args(argv)
+    if args.fit_confidence is not None:
+        model = fit_confidence_from_records(json.loads(args.fit_confidence.read_text())["records"])
+        print(f"fitted on {args.fit_confidence}: {model}")
+        return
     with tempfile.TemporaryDirectory() as tmp:
         data = args.data
         if data is None:
@@ -301,6 +459,31 @@ def main(argv: list[str] | None = None) -> None:
     _print_summary("all scenes", res["all_scenes"])
     if res["test_split"]:
         _print_summary("test split (unseen categories + distractors)", res["test_split"])
+    print("\nconfidence (contenders: 1 = a pick, >= 2 ambiguous, 0 none):")
+    print(
+        f"  {'kind':18} {'n':>5} {'right pick':>11} {'wrong pick':>11} {'ambiguous':>10} {'none':>7} "
+        f"{'ECE':>6}"
+    )
+    for kind, c in res["confidence"].items():
+        ece = c.get("expected_calibration_error")
+        print(
+            f"  {kind:18} {c['n']:5d} {100 * c['pick_right']:10.1f}% {100 * c['wrong_pick']:10.1f}% "
+            f"{100 * c['ambiguous']:9.1f}% {100 * c['none']:6.1f}% {'' if ece is None else f'{ece:6.3f}'}"
+        )
+    if args.reliability_svg:
+        rows = [(k, c) for k, c in res["confidence"].items() if "reliability" in c]
+        merged = [
+            {
+                "bin": rows[0][1]["reliability"][b]["bin"],
+                "n": sum(c["reliability"][b]["n"] for _, c in rows),
+                "mean_predicted": _weighted(rows, b, "mean_predicted"),
+                "observed": _weighted(rows, b, "observed"),
+            }
+            for b in range(len(rows[0][1]["reliability"]))
+        ]
+        args.reliability_svg.parent.mkdir(parents=True, exist_ok=True)
+        args.reliability_svg.write_text(reliability_svg(merged, f"grounding confidence, {res['data']}"))
+        print(f"wrote {args.reliability_svg}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(res, indent=2))

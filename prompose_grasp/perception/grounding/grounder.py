@@ -14,6 +14,7 @@ import numpy as np
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import depth_to_point_map, valid_depth_mask
+from prompose_grasp.perception.grounding.confidence import ConfidenceModel, contenders, match_probabilities
 from prompose_grasp.perception.grounding.describe import (
     PALETTE,
     SHAPE_FAMILIES,
@@ -35,7 +36,7 @@ from prompose_grasp.perception.grounding.score import (
     NounPrior,
     RivalReadings,
     ScoringWeights,
-    score_candidates,
+    candidate_totals,
 )
 from prompose_grasp.perception.grounding.segment import Segment, segment_objects
 from prompose_grasp.perception.grounding.types import (
@@ -113,6 +114,9 @@ class Grounder:
         priors: a `perception.priors.PriorLibrary` whose families' typical sizes give the metric size term
             (share the estimator's); default: one built on first use with this grounder's text encoder
             (the priors package is imported then, not at module import: it pulls in trimesh).
+        knowledge: a `perception.knowledge.ObjectKnowledge` (typical size, colour and shape by object name);
+            default: the shipped table with this grounder's text encoder, built on first use.
+        confidence: the calibration of the match probabilities and contenders (`confidence.ConfidenceModel`).
 
     The text encoder is only touched by `ground`; embeddings of descriptions and family sentences and the
     library family of each noun are cached.
@@ -124,6 +128,8 @@ class Grounder:
         text_encoder: Any | None = None,
         weights: ScoringWeights | None = None,
         priors: Any | None = None,
+        knowledge: Any | None = None,
+        confidence: ConfidenceModel | None = None,
     ):
         if config is not None and not isinstance(config, GroundingConfig):
             raise InvalidInputError(f"config must be a GroundingConfig, got {type(config).__name__}")
@@ -134,8 +140,16 @@ class Grounder:
                 "priors must be a perception.priors.PriorLibrary (with match and family_prior), "
                 f"got {type(priors).__name__}"
             )
+        if knowledge is not None and not hasattr(knowledge, "lookup"):
+            raise InvalidInputError(
+                f"knowledge must be a perception.knowledge.ObjectKnowledge, got {type(knowledge).__name__}"
+            )
+        if confidence is not None and not isinstance(confidence, ConfidenceModel):
+            raise InvalidInputError(f"confidence must be a ConfidenceModel, got {type(confidence).__name__}")
         self.config = config or GroundingConfig()
         self.weights = weights or ScoringWeights()
+        self.confidence = confidence or ConfidenceModel()
+        self._knowledge = knowledge
         self._encoder = text_encoder
         self._priors = priors
         self._cache: dict[str, np.ndarray] = {}
@@ -162,6 +176,17 @@ class Grounder:
                 self._priors = PriorLibrary(encoder=self.text_encoder)
             return self._priors
 
+    @property
+    def knowledge(self) -> Any:
+        """The object-knowledge table consulted for the named object's size, colours and shape (built on first
+        access)."""
+        with self._priors_lock:
+            if self._knowledge is None:
+                from prompose_grasp.perception.knowledge import ObjectKnowledge
+
+                self._knowledge = ObjectKnowledge(self.text_encoder)
+            return self._knowledge
+
     def warm_up(self) -> None:
         """Load the text encoder, embed every possible description, the shape-family sentences and the prior
         library's family names, and build every family's `NounPrior` (the rival term reads them all).
@@ -178,6 +203,7 @@ class Grounder:
         self._embed([*FAMILY_TEXTS.values(), *phrases, *self._family_names()])
         for name in ("object", *self._family_names()):  # the rival term reads every family (`_rivals`)
             self.noun_prior(name)
+        self.knowledge.warm_up()
 
     def noun_prior(self, noun: str) -> NounPrior | None:
         """The library family `noun` names (its best match at or above the library's threshold), or None.
@@ -346,16 +372,23 @@ class Grounder:
         described = [self._attributes(rgb, P, s, frame) for s in segs]
         t3 = time.perf_counter()
         candidates: tuple[Candidate, ...] = ()
+        n_contenders = 0
         if segs:
-            scores = self._score(parsed, described, has_plane=plane is not None)
-            order = np.argsort(-scores, kind="stable")[: cfg.max_candidates]
+            totals = self._totals(parsed, described, has_plane=plane is not None)
+            scores = 1.0 / (1.0 + np.exp(-2.0 * (totals - 1.0)))
+            probs, p_none = match_probabilities(totals, self.confidence)
+            n_contenders = contenders(probs, p_none, self.confidence)
+            order = np.argsort(-totals, kind="stable")[: cfg.max_candidates]
             candidates = tuple(
-                Candidate(segs[i].mask, segs[i].box_xyxy, float(scores[i]), described[i][0]) for i in order
+                Candidate(segs[i].mask, segs[i].box_xyxy, float(scores[i]), described[i][0], float(probs[i]))
+                for i in order
             )
         t4 = time.perf_counter()
         timing = GroundingTiming(t1 - t0, t2 - t1, t3 - t2, t4 - t3, t4 - t0)
         log.debug("grounded %r: %d candidates in %.1f ms", prompt, len(candidates), 1e3 * timing.total_s)
-        return GroundingResult(prompt=prompt, candidates=candidates, support_plane=plane, timing=timing)
+        return GroundingResult(
+            prompt=prompt, candidates=candidates, support_plane=plane, timing=timing, contenders=n_contenders
+        )
 
     def _description_sim(self, text: str, described: list) -> np.ndarray:
         """(K,) cosine of `text` with each candidate's description."""
@@ -391,7 +424,12 @@ class Grounder:
         # without a plane the extents are principal spreads, largest first
         return NounPrior(prior.family, prior.match_score, np.sort(prior.typical_extent_m)[::-1])
 
-    def _score(self, parsed: ParsedPrompt, described: list, has_plane: bool = True) -> np.ndarray:
+    def _knowledge_for(self, parsed: ParsedPrompt) -> Any:
+        """What the knowledge table knows of the prompt's noun, or None (a generic noun, no near entry)."""
+        return None if parsed.generic else self.knowledge.lookup(parsed.noun)
+
+    def _totals(self, parsed: ParsedPrompt, described: list, has_plane: bool = True) -> np.ndarray:
+        """(K,) score totals of the described candidates for `parsed` (`score.candidate_totals`)."""
         # every text this prompt needs goes through the encoder in one batch (one forward pass, not four)
         phrases = [p for p in (parsed, parsed.reference) if p is not None]
         self._embed(
@@ -408,7 +446,7 @@ class Grounder:
                 self._for_text(feats, parsed.reference.text, described),
                 self._shape_prob(parsed.reference),
             )
-        return score_candidates(
+        return candidate_totals(
             parsed,
             feats,
             self._shape_prob(parsed),
@@ -419,6 +457,8 @@ class Grounder:
             if parsed.reference is None
             else self._prior_for(parsed.reference, has_plane),
             rivals=rivals,
+            knowledge=self._knowledge_for(parsed),
+            reference_knowledge=None if parsed.reference is None else self._knowledge_for(parsed.reference),
         )
 
     def _rivals(

@@ -13,12 +13,17 @@ cosine):
 | handle | a handle seen: +1 when the noun's family mesh has one, -1 when it has none; 0 unseen | 1.0 |
 | taper | a round candidate's taper unlike the noun's family mesh's: to -1; 0 alike or unmeasured | 1.0 |
 | rival | another library family explains the candidate better than the noun's: minus the difference | 0.5 |
+| knowledge size | the measured extents against the named object's typical size range (**) | 1.5 |
+| knowledge colour | share of the named object's typical colours (prompt without a colour) (**) | 0.75 |
+| knowledge shape | measured shape family against the named object's coarse shape (**) | 0.5 |
 | size, superlative | rank among the plausible candidates: +1 the extreme, -1 the other end | 2.0 |
 | size, adjective | "small" +1 for size class small, 0 medium, -1 large (and mirrored for "large") | 0.5 |
 | position | rank among the plausible candidates ("nearest", "leftmost", ...), like superlatives | 1.5 |
 | relation | direction cosine to the reference object ("left of", "behind") or nearness ("next to") | 1.5 |
 
 (*) A box/cylinder reading near its threshold (`describe.shape_families`): the mean of both readings' fits.
+(**) Times the weight of the knowledge table's match for the noun (`knowledge.KnowledgeMatch.weight`: 1 for
+a name or synonym of the table, less for the nearest entries of an unseen name, no term without a match).
 
 The colour weight is the largest single-term weight because a colour word is the most reliable thing a
 prompt says about an image. Ranking terms (superlatives, positions) only rank the *plausible* candidates:
@@ -81,13 +86,30 @@ benchmark's development set (15 scenes of dev split 22): category prompts 94.6 -
 85 %: the cartons they lost to are read better as cartons), colour + category prompts and the test split
 unchanged; docs/grounding.md, session 13.
 
+Object knowledge. The knowledge table (`perception.knowledge`, docs/knowledge.md) knows what a named object
+usually is: "tuna can" 8-9 cm across and 3.3-4.5 cm tall, "mustard bottle" yellow, "banana" long and thin.
+Its match for the prompt's noun scores three things. Size: the candidate's extents and the entry's ranges
+are both sorted largest first (the table's ranges do not say which way the object stands), and an extent
+outside its range by the log ratio r (with 1 cm of slack for segmentation and noise) adds (r / sigma)^2:
+sigma 0.2 above the range (what a view shows only exceeds the object when segmentation took in a
+neighbour), 0.35 / 0.6 / 0.6 below it (occlusion and the half of a round body the camera does not see
+only shrink what is measured). The term is 2 exp(-d2 / 2) - 1 with d2 the sum over the axes: the ranges
+already span the kind's variation, so one extent outside them counts. Colour: the share of the entry's
+typical colours in the mask, +1 from 50 % (a label rarely covers less) down to -0.3 at none (a kind's
+typical colour is usual, not certain: a blue bowl is still a bowl); only when the prompt names no colour,
+since a colour word is the user's own. Shape: the coarse shape's fit to the measured
+family. When the noun's match has a weight of at least 0.5, its size range replaces the library family's
+typical size in the metric size term (a named product's range is more specific than its family's mean).
+
 The returned score is sigmoid(2 (total - 1)): in (0, 1), monotone in the total, comparable within a prompt.
+The totals themselves (`candidate_totals`) give the calibrated match probabilities (`confidence`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -95,10 +117,14 @@ from prompose_grasp.perception.grounding.language import ParsedPrompt
 
 __all__ = [
     "FAMILY_TEXTS",
+    "SHAPE_FIT",
     "CandidateFeatures",
     "NounPrior",
     "RivalReadings",
     "ScoringWeights",
+    "candidate_totals",
+    "knowledge_size_term",
+    "knowledge_terms",
     "metric_size_term",
     "score_candidates",
 ]
@@ -126,6 +152,15 @@ class ScoringWeights:
     handle: float = 1.0
     taper: float = 1.0
     rival: float = 0.5
+    knowledge_size: float = 1.5
+    knowledge_colour: float = 0.75
+    knowledge_shape: float = 0.5
+    knowledge_over_sigma: float = 0.2
+    knowledge_under_sigma: tuple[float, float, float] = (0.35, 0.6, 0.6)
+    knowledge_slack_m: float = 0.01
+    knowledge_colour_full_share: float = 0.5
+    knowledge_colour_miss: float = 0.3
+    knowledge_replaces_family_size: float = 0.5
     taper_sigma: float = 0.08
     taper_judged_from: float = -0.1
     size_over_sigma: float = 0.35
@@ -159,6 +194,61 @@ class NounPrior:
     top_height_histogram: np.ndarray | None = None
     has_handle: bool = False
     taper: float = float("nan")
+
+
+#: How well a measured shape family (`describe.SHAPE_FAMILIES`, columns) fits a knowledge entry's coarse shape
+#: (`knowledge.COARSE_SHAPES`, rows), in [-1, 1]. What a view can make of each shape sets the values: a round
+#: thing's footprint can read box-like from one side, a short can reads flat, a lying bottle elongated, a
+#: flat box reads box or flat; "irregular" (toys, tools with heads) says nothing either way.
+_FIT_COLUMNS = ("box", "cylinder", "sphere", "flat", "elongated", "irregular")
+SHAPE_FIT: dict[str, dict[str, float]] = {
+    shape: dict(zip(_FIT_COLUMNS, row))
+    for shape, row in (
+        #             box  cylinder sphere flat elongated irregular
+        ("box",       (1.0, -0.5, -1.0, 0.5, 0.0, 0.0)),
+        ("cylinder",  (-0.5, 1.0, 0.0, 0.0, 0.0, 0.0)),
+        ("round",     (-1.0, 0.3, 1.0, -0.5, -1.0, 0.3)),
+        ("flat",      (0.3, -0.3, -1.0, 1.0, 0.0, 0.0)),
+        ("elongated", (0.0, 0.0, -1.0, 0.0, 1.0, 0.0)),
+        ("irregular", (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
+    )
+}  # fmt: skip
+
+
+def knowledge_size_term(
+    extents_m: np.ndarray, lo_m: np.ndarray, hi_m: np.ndarray, w: ScoringWeights
+) -> np.ndarray:
+    """(K,) in [-1, 1]: how well (K, 3) measured extents [m] fall in an object's typical (3,) size range
+    [lo, hi] (both largest first), orientation-free (module docstring, "Object knowledge")."""
+    e = np.sort(np.maximum(np.asarray(extents_m, dtype=np.float64), 1e-3), axis=1)[:, ::-1]
+    over = np.log(np.maximum(e - w.knowledge_slack_m, 1e-3) / hi_m)
+    under = np.log((e + w.knowledge_slack_m) / lo_m)
+    r_over, r_under = np.maximum(over, 0.0), np.minimum(under, 0.0)
+    under_sigma = np.asarray(w.knowledge_under_sigma, dtype=np.float64)
+    # summed, not averaged, over the axes: the range already spans the kind's variation, so one extent
+    # outside it is as telling as three
+    d2 = np.sum((r_over / w.knowledge_over_sigma) ** 2 + (r_under / under_sigma) ** 2, axis=1)
+    return 2.0 * np.exp(-0.5 * d2) - 1.0
+
+
+def knowledge_terms(
+    parsed: ParsedPrompt, feats: CandidateFeatures, match: Any, w: ScoringWeights
+) -> np.ndarray:
+    """(K,) the object-knowledge total of each candidate for a `knowledge.KnowledgeMatch` (module docstring):
+    size range, typical colours (when the prompt names none) and coarse shape, times the match's weight."""
+    total = np.zeros(len(feats.description_sim))
+    if parsed.size is None:
+        total += w.knowledge_size * knowledge_size_term(feats.extents_m, match.size_lo_m, match.size_hi_m, w)
+    if match.colours and not parsed.colours:
+        cols = [feats.palette.index(c) for c in match.colours]
+        share = feats.colour_shares[:, cols].sum(axis=1)
+        # typical colours are what a kind usually shows, not what it must: a match adds up to 1, a miss
+        # takes at most `knowledge_colour_miss` (a blue bowl is still a bowl)
+        full = np.clip(share / w.knowledge_colour_full_share, 0.0, 1.0)
+        total += w.knowledge_colour * ((1.0 + w.knowledge_colour_miss) * full - w.knowledge_colour_miss)
+    fits = np.array([max(SHAPE_FIT[s][f] for s in match.shapes) for f in feats.families])
+    total += w.knowledge_shape * fits
+    return match.weight * total
 
 
 def metric_size_term(extents_m: np.ndarray, typical_extent_m: np.ndarray, w: ScoringWeights) -> np.ndarray:
@@ -235,8 +325,9 @@ def _base_terms(
     shape_prob: dict[str, float] | None,
     w: ScoringWeights,
     noun_prior: NounPrior | None = None,
+    knowledge: Any = None,
 ) -> np.ndarray:
-    """Semantic + colour + shape + metric size + size-adjective total of each candidate."""
+    """Semantic + colour + shape + metric size + object knowledge + size-adjective total of each candidate."""
     total = w.semantic * feats.description_sim.astype(np.float64)
     if parsed.colours:
         cols = [feats.palette.index(c) for c in parsed.colours]
@@ -253,7 +344,11 @@ def _base_terms(
         total += w.shape * np.array(
             [fit(f) if g is None else 0.5 * (fit(f) + fit(g)) for f, g in zip(feats.families, alternatives)]
         )
-    if noun_prior is not None and parsed.size is None:
+    if knowledge is not None:
+        total += knowledge_terms(parsed, feats, knowledge, w)
+    # a family's typical size is a coarser guess than the named object's own range: it gives way to it
+    knows_size = knowledge is not None and knowledge.weight >= w.knowledge_replaces_family_size
+    if noun_prior is not None and parsed.size is None and not knows_size:
         total += w.metric_size * metric_size_term(feats.extents_m, noun_prior.typical_extent_m, w)
     if (
         noun_prior is not None
@@ -293,8 +388,31 @@ def score_candidates(
     noun_prior: NounPrior | None = None,
     reference_prior: NounPrior | None = None,
     rivals: RivalReadings | None = None,
+    knowledge: Any = None,
+    reference_knowledge: Any = None,
 ) -> np.ndarray:
-    """(K,) float64 scores in (0, 1) of the candidates for `parsed` (higher is better).
+    """(K,) float64 scores in (0, 1) of the candidates for `parsed` (higher is better): sigmoid(2 (total - 1))
+    of `candidate_totals` (same arguments)."""
+    total = candidate_totals(
+        parsed, feats, shape_prob, reference, weights, noun_prior, reference_prior, rivals, knowledge,
+        reference_knowledge,
+    )  # fmt: skip
+    return 1.0 / (1.0 + np.exp(-2.0 * (total - 1.0)))
+
+
+def candidate_totals(
+    parsed: ParsedPrompt,
+    feats: CandidateFeatures,
+    shape_prob: dict[str, float] | None,
+    reference: tuple[CandidateFeatures, dict[str, float] | None] | None = None,
+    weights: ScoringWeights | None = None,
+    noun_prior: NounPrior | None = None,
+    reference_prior: NounPrior | None = None,
+    rivals: RivalReadings | None = None,
+    knowledge: Any = None,
+    reference_knowledge: Any = None,
+) -> np.ndarray:
+    """(K,) float64 weighted totals of the score terms of the candidates for `parsed` (module docstring).
 
     Args:
         parsed: the parsed prompt.
@@ -307,12 +425,14 @@ def score_candidates(
             one (the metric size term), else None.
         rivals: the candidates read as the library's other families (`RivalReadings`), for a target noun
             that names one of them.
+        knowledge, reference_knowledge: what the object-knowledge table knows of the target's / reference's
+            noun (`knowledge.KnowledgeMatch`), or None.
     """
     w = weights or ScoringWeights()
     K = len(feats.description_sim)
     if K == 0:
         return np.zeros(0)
-    base = _base_terms(parsed, feats, shape_prob, w, noun_prior)
+    base = _base_terms(parsed, feats, shape_prob, w, noun_prior, knowledge)
     if rivals is not None and rivals.others and noun_prior is not None:
         # another family of the library that explains a candidate better takes from it (module docstring);
         # the nouns alone are compared, so the prompt's other words count the same on both sides
@@ -332,7 +452,9 @@ def score_candidates(
         total += w.position * _rank_term(values, direction, plausible)
     if parsed.relation is not None and parsed.reference is not None and reference is not None:
         ref_feats, ref_shape = reference
-        ref_base = _base_terms(parsed.reference, ref_feats, ref_shape, w, reference_prior)
+        ref_base = _base_terms(
+            parsed.reference, ref_feats, ref_shape, w, reference_prior, reference_knowledge
+        )
         ref = int(np.argmax(ref_base))
         delta = feats.plane_xy_m - feats.plane_xy_m[ref]
         dist = np.linalg.norm(delta, axis=1)
@@ -350,4 +472,4 @@ def score_candidates(
             term = (delta @ axis) / safe * np.clip(dist / 0.03, 0.0, 1.0)
         term[ref] = -1.0
         total += w.relation * term
-    return 1.0 / (1.0 + np.exp(-2.0 * (total - 1.0)))
+    return total

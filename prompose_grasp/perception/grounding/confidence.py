@@ -1,0 +1,112 @@
+"""Match probabilities from score totals, and how many candidates contend for a prompt.
+
+The grounder's score terms add up to a total per candidate (`score.candidate_totals`). Which candidate the
+prompt names is read as a choice among the candidates and "none of them": a softmax of the totals with a
+temperature, beside a fixed total for "none",
+
+    p_i = exp(t_i / T) / (exp(t_none / T) + sum_j exp(t_j / T)),
+
+so a candidate's probability is high only when its total stands clear of every other and of "none". T and
+t_none are fitted by maximum likelihood on generated scenes whose true object is known (the grounding
+benchmark's records, `fit_confidence`): T so that the probabilities match how often the best is right
+(docs/grounding.md, "Confidence"), t_none from prompts for objects that are not in the frame.
+
+Contenders (`contenders`): 0 when "none" is likelier than the best candidate (nothing fits the words), 1
+when the best is clear (its probability at least `clear_probability`, or no other within
+`contender_ratio` of it), else the number of candidates within `contender_ratio` of the best: the prompt
+does not tell them apart, and choosing one would be a guess.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from prompose_grasp.errors import InvalidInputError
+
+__all__ = ["ConfidenceModel", "contenders", "fit_confidence", "match_probabilities"]
+
+
+@dataclass(frozen=True)
+class ConfidenceModel:
+    """Calibration of the match probabilities (module docstring).
+
+    Attributes:
+        temperature: T, in units of the score total.
+        none_total: t_none, the total of "none of the candidates".
+        clear_probability: a best candidate this probable is chosen whatever the runner-up.
+        contender_ratio: candidates whose probability is at least this fraction of the best's contend with
+            it (when the best is not clear).
+    """
+
+    temperature: float = 0.5
+    none_total: float = -1.0
+    clear_probability: float = 0.75
+    contender_ratio: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.temperature) and self.temperature > 0):
+            raise InvalidInputError(f"temperature must be finite and > 0, got {self.temperature}")
+        if not np.isfinite(self.none_total):
+            raise InvalidInputError(f"none_total must be finite, got {self.none_total}")
+        if not 0.0 < self.clear_probability <= 1.0 or not 0.0 < self.contender_ratio <= 1.0:
+            raise InvalidInputError("clear_probability and contender_ratio must be in (0, 1]")
+
+
+def match_probabilities(totals: np.ndarray, model: ConfidenceModel) -> tuple[np.ndarray, float]:
+    """(K,) probability of each candidate and the probability of "none", from (K,) score totals."""
+    t = np.asarray(totals, dtype=np.float64)
+    z = np.append(t, model.none_total) / model.temperature
+    z = np.exp(z - z.max())
+    p = z / z.sum()
+    return p[:-1], float(p[-1])
+
+
+def contenders(probabilities: np.ndarray, p_none: float, model: ConfidenceModel) -> int:
+    """How many of the best candidates fit about equally well (module docstring); probabilities best first
+    or in any order."""
+    p = np.sort(np.asarray(probabilities, dtype=np.float64))[::-1]
+    if len(p) == 0 or p[0] < p_none:
+        return 0
+    if p[0] >= model.clear_probability:
+        return 1
+    return max(1, int(np.count_nonzero(p >= model.contender_ratio * p[0])))
+
+
+def fit_confidence(
+    prompts: list[tuple[np.ndarray, np.ndarray]],
+    absent: list[np.ndarray],
+    base: ConfidenceModel | None = None,
+) -> ConfidenceModel:
+    """Maximum-likelihood T and t_none.
+
+    Args:
+        prompts: per prompt whose object is in the frame, the (K,) totals and a (K,) bool of the candidates
+            that are that object (a prompt whose object no candidate matches is a "none" case).
+        absent: per prompt whose object is not in the frame, the (K,) totals (the right answer is "none").
+        base: the other settings to keep (`clear_probability`, `contender_ratio`).
+    """
+    from scipy.optimize import minimize
+
+    base = base or ConfidenceModel()
+
+    def nll(x: np.ndarray) -> float:
+        T, t0 = float(np.exp(x[0])), float(x[1])
+        total = 0.0
+        for totals, right in prompts:
+            z = np.append(totals, t0) / T
+            m = z.max()
+            lse = m + np.log(np.exp(z - m).sum())
+            good = np.append(right, not np.any(right))
+            total -= np.log(np.exp(z[good] - lse).sum())
+        for totals in absent:
+            z = np.append(totals, t0) / T
+            m = z.max()
+            total -= z[-1] - (m + np.log(np.exp(z - m).sum()))
+        return total
+
+    res = minimize(nll, x0=np.array([np.log(base.temperature), base.none_total]), method="Nelder-Mead")
+    return ConfidenceModel(
+        float(np.exp(res.x[0])), float(res.x[1]), base.clear_probability, base.contender_ratio
+    )

@@ -1,0 +1,171 @@
+"""The object-knowledge table: its schema, retrieval by name, and the score terms it gives."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from prompose_grasp.errors import InvalidInputError
+from prompose_grasp.perception.grounding.describe import PALETTE
+from prompose_grasp.perception.grounding.language import parse_prompt
+from prompose_grasp.perception.grounding.score import (
+    SHAPE_FIT,
+    CandidateFeatures,
+    ScoringWeights,
+    knowledge_size_term,
+    knowledge_terms,
+)
+from prompose_grasp.perception.knowledge import COARSE_SHAPES, ObjectKnowledge, load_table
+from prompose_grasp.perception.knowledge.table import FULL_MATCH, _joined
+
+
+@pytest.fixture(scope="module")
+def knowledge():
+    from prompose_grasp.perception.text import default_text_encoder
+
+    return ObjectKnowledge(default_text_encoder())
+
+
+def test_the_shipped_table_is_large_valid_and_covers_every_shape():
+    entries = load_table()  # validates every entry (schema, sorted ranges, palette names)
+    assert len(entries) >= 300
+    assert len({e.name for e in entries}) == len(entries)
+    assert {e.shape for e in entries} == set(COARSE_SHAPES)
+    for e in entries:
+        assert np.all(e.size_lo_m <= e.size_hi_m)
+        assert set(e.colours) <= set(PALETTE)
+
+
+def _write(tmp_path, entries):
+    path = tmp_path / "objects.json"
+    path.write_text(json.dumps(entries))
+    return path
+
+
+_GOOD = {
+    "name": "widget",
+    "synonyms": ["gizmo"],
+    "category": "household",
+    "size_m": [[0.1, 0.2], [0.05, 0.08], [0.02, 0.03]],
+    "colours": ["red"],
+    "shape": "box",
+    "features": [],
+    "rigid": True,
+}
+
+
+@pytest.mark.parametrize(
+    ("change", "words"),
+    [
+        ({"size_m": [[0.02, 0.03], [0.05, 0.08], [0.1, 0.2]]}, "largest first"),
+        ({"size_m": [[0.2, 0.1], [0.05, 0.08], [0.02, 0.03]]}, "min > max"),
+        ({"colours": ["mauve"]}, "mauve"),
+        ({"shape": "blob"}, "blob"),
+        ({"category": "space"}, "space"),
+        ({"rigid": "yes"}, "rigid"),
+        ({"extra": 1}, "exactly the keys"),
+    ],
+)
+def test_a_bad_entry_is_refused_naming_what_is_wrong(tmp_path, change, words):
+    with pytest.raises(InvalidInputError, match=words):
+        load_table(_write(tmp_path, [{**_GOOD, **change}]))
+
+
+def test_a_name_given_twice_and_a_missing_file_are_refused(tmp_path):
+    with pytest.raises(InvalidInputError, match="twice"):
+        load_table(_write(tmp_path, [_GOOD, {**_GOOD, "name": "doohickey", "synonyms": ["gizmo"]}]))
+    with pytest.raises(InvalidInputError, match="cannot read"):
+        load_table(tmp_path / "nothing.json")
+
+
+@pytest.mark.parametrize(
+    ("noun", "name"),
+    [
+        ("tuna can", "tuna can"),  # a name
+        ("can of tuna", "tuna can"),  # a synonym
+        ("mustard bottle", "mustard bottle"),
+        ("coffee mug", "mug"),
+        ("banana", "banana"),
+        ("sugar box", "sugar box"),
+        ("gelatin box", "gelatin box"),
+    ],
+)
+def test_names_and_synonyms_retrieve_their_entry_at_full_weight(knowledge, noun, name):
+    match = knowledge.lookup(noun)
+    assert match is not None and match.entry.name == name
+    assert match.weight == 1.0
+
+
+def test_an_unseen_name_falls_to_its_nearest_entries_with_less_weight(knowledge):
+    # names that are no name or synonym of the table: the nearest kinds, weighted down
+    for noun in ("sardine tin", "jar of honey"):
+        match = knowledge.lookup(noun)
+        assert match is not None, noun
+        assert match.similarity < FULL_MATCH or match.weight == 1.0
+        assert 0.0 < match.weight <= 1.0
+    assert knowledge.lookup("quantum flux capacitor") is None or knowledge.lookup("xqzv").weight < 0.5
+    assert knowledge.lookup("") is None
+
+
+def test_joined_entries_span_both_ranges_and_keep_colours_only_when_all_have_them():
+    a = load_table()[0]
+    b = next(e for e in load_table() if not e.colours)
+    m = _joined("x", (a, b), 0.7, 0.5)
+    assert np.allclose(m.size_lo_m, np.minimum(a.size_lo_m, b.size_lo_m))
+    assert np.allclose(m.size_hi_m, np.maximum(a.size_hi_m, b.size_hi_m))
+    assert m.colours == ()  # b comes in any colour
+
+
+def test_size_term_inside_the_range_is_one_and_outside_follows_the_log_normal():
+    w = ScoringWeights()
+    lo, hi = np.array([0.10, 0.06, 0.04]), np.array([0.12, 0.07, 0.05])
+    inside = knowledge_size_term(np.array([[0.11, 0.065, 0.045]]), lo, hi, w)
+    assert inside[0] == pytest.approx(1.0)
+    # every extent 20 % over the top of its range (plus the slack): r = log 1.2 on each of the three axes,
+    # summed
+    e = 1.2 * hi + w.knowledge_slack_m
+    term = knowledge_size_term(e[None, :], lo, hi, w)[0]
+    expected = 2.0 * np.exp(-0.5 * 3.0 * (np.log(1.2) / w.knowledge_over_sigma) ** 2) - 1.0
+    assert term == pytest.approx(expected)
+    # orientation-free: the same extents in another order score the same
+    assert knowledge_size_term(e[None, ::-1], lo, hi, w)[0] == pytest.approx(term)
+    # the same log ratio below the range is judged with the wider under-sigma (occlusion and self-occlusion
+    # only shrink what is measured)
+    small = knowledge_size_term((lo / 1.2 - w.knowledge_slack_m)[None, :], lo, hi, w)[0]
+    assert small > term
+
+
+def _feats(extents, families, shares):
+    K = len(extents)
+    return CandidateFeatures(
+        description_sim=np.zeros(K),
+        colour_shares=np.asarray(shares, dtype=np.float64),
+        palette=PALETTE,
+        size_classes=("medium",) * K,
+        families=tuple(families),
+        extents_m=np.asarray(extents, dtype=np.float64),
+        plane_xy_m=np.zeros((K, 2)),
+        distance_m=np.ones(K),
+    )
+
+
+def test_knowledge_terms_prefer_the_size_colour_and_shape_of_the_named_object(knowledge):
+    match = knowledge.lookup("mustard bottle")
+    yellow, red = np.zeros(len(PALETTE)), np.zeros(len(PALETTE))
+    yellow[PALETTE.index("yellow")], red[PALETTE.index("red")] = 1.0, 1.0
+    typical = match.entry.typical_size_m
+    feats = _feats([typical, typical, 3.0 * typical], ["cylinder"] * 3, [yellow, red, yellow])
+    terms = knowledge_terms(parse_prompt("the mustard bottle"), feats, match, ScoringWeights())
+    assert terms[0] > terms[1] and terms[0] > terms[2]
+    # a colour word in the prompt is the user's, and the typical colours then say nothing
+    told = knowledge_terms(parse_prompt("the red mustard bottle"), feats, match, ScoringWeights())
+    assert told[0] == pytest.approx(told[1])
+
+
+def test_shape_fit_rows_cover_every_coarse_shape_and_stay_in_range():
+    assert set(SHAPE_FIT) == set(COARSE_SHAPES)
+    for row in SHAPE_FIT.values():
+        assert all(-1.0 <= v <= 1.0 for v in row.values())
+        assert max(row.values()) == 1.0 or all(v == 0.0 for v in row.values())
