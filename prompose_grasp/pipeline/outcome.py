@@ -13,6 +13,10 @@ __all__ = ["REASONS", "STAGES", "AttemptRecord", "PickOutcome", "ProgressEvent",
 
 #: Why a run ended. "success" is the only good one; the others say which stage gave up ("not_understood":
 #: the command text could not be parsed; the message says what was understood and gives examples).
+#: "ambiguous": several objects fit the prompt about equally well, so none was touched; the message
+#: describes each (colour, kind, where, size) and the outcome's `estimates` are theirs, best first.
+#: "wrong_object": after the lift, what is held is not the object named (another one fits the prompt
+#: clearly better); it was put back where it stood, and the message names both.
 Reason = Literal[
     "success",
     "not_found",
@@ -23,6 +27,8 @@ Reason = Literal[
     "timeout",
     "camera_failed",
     "not_understood",
+    "ambiguous",
+    "wrong_object",
 ]
 REASONS: tuple[str, ...] = get_args(Reason)
 #: Stages a `ProgressEvent` can name, in the order a run goes through them.
@@ -82,7 +88,8 @@ class PickOutcome:
         success: reason == "success".
         message: what happened, in words (the last failure's details when it failed).
         command: the parsed `Command`, or None when the text could not be parsed.
-        estimates: every `Estimate` of the target used, in order (camera frame of its frame).
+        estimates: every `Estimate` of the target used, in order (camera frame of its frame); for "ambiguous"
+            the contenders', best first.
         T_base_cams: (4, 4) `T_base_cam` of the frame of each estimate [m].
         attempts: the `AttemptRecord`s, in order.
         grasp: the grasp that held the object, or None.

@@ -24,17 +24,32 @@ Every expected failure ends the run with a typed reason (`PickOutcome.reason`) i
 | collision | every feasible grasp's approach path collides with the observed scene |
 | slipped | the gripper closed on nothing or lost the object, on every attempt |
 | timeout | `PickConfig.timeout_s` passed (checked between stages; a running move is never cut) |
+| ambiguous | several objects fit the prompt about equally well and the command names one: nothing moved |
+| wrong_object | after the lift a standing object fits the prompt clearly better: the held one was put back |
 
 Which object: the estimator's candidates for the prompt whose grounding score is within `candidate_ratio` of
 the best are all "the object" (identical cartons on a pallet); with `candidate_order="top_first"` (default)
 they are tried from the highest top down (what lies on top of a pile first), with `"score"` (a tabletop of
 different things, where a 90 % candidate is often another object) best match first; any already at the place
-target is skipped, and the first with a feasible grasp is picked.
+target is skipped, and the first with a feasible grasp is picked. When the estimator says several objects fit
+the prompt about equally well (`Estimate.contenders` >= 2, or `AmbiguousObjectError`), a command naming one
+object with `candidate_order="score"` ends "ambiguous" before anything moves (`describe.describe_contenders`
+says which could be meant); a plural command and a `"top_first"` stack take any of them. `contenders` 0 (none
+fits the words) is "not_found"; -1 (not judged) changes nothing.
 
 Verification: the jaws must have stopped on something (the gripper's own detection) no narrower than
 `min_jaw_width_m`, or half the planned contact width for a thinner part (a cup's 2 mm wall); after a pick the
 camera must no longer see the object where it stood. A grasp whose approach or lift line would flip a wrist
 on the way (IK every 5 mm, seeded with the last) is skipped before anything moves.
+
+No wrong-object success: after the lift (pick and place alike) the prompt is estimated again; the candidate
+nearest the tcp is what is held. When another candidate, standing where the camera saw an object before the
+pick, fits the prompt clearly better (`PickConfig.wrong_object_margin` on the calibrated `probability`), or
+the prompt names a colour the held object clearly lacks while the other shows it, the object is put back (the
+lift line back down to its grasp pose, validated first, then open and retreat) and the run ends
+"wrong_object", or, with `retry_wrong_object`, the better candidate is tried once (the one put back never
+again). Without probabilities, masks or a held candidate the check cannot judge and passes: it never
+invents a wrong object.
 
 A plural command ("move the cartons to the conveyor") repeats pick-and-place until no such object
 is left (or `max_objects`). A place target that names no fixture of the cell ("in the white bowl", "on the tea
@@ -59,6 +74,7 @@ from typing import Any
 import numpy as np
 
 from prompose_grasp.errors import (
+    AmbiguousObjectError,
     CameraError,
     InvalidInputError,
     NoFeasibleGrasp,
@@ -88,6 +104,14 @@ from prompose_grasp.grasp.place import footprint
 from prompose_grasp.grasp.planner import build_scene, robot_pixel_mask, robot_self_capsules
 from prompose_grasp.grasp.scene import CollisionScene
 from prompose_grasp.pipeline.command import Command, CommandNotUnderstood, CommandParser
+from prompose_grasp.pipeline.describe import (
+    colour_share,
+    describe_contenders,
+    object_noun,
+    phrase,
+    positions,
+    prompt_colour,
+)
 from prompose_grasp.pipeline.outcome import AttemptRecord, PickOutcome, ProgressEvent
 from prompose_grasp.robot.interfaces import RGBDFrame
 from prompose_grasp.robot.validator import CommandValidator, ValidatorConfig
@@ -152,6 +176,15 @@ class PickConfig:
         self_filter_margin_m: depth readings within this of the arm's and gripper's capsules at the joints of
             the capture are the robot itself and are dropped before estimating (robot self-filtering: a link
             in view is otherwise grounded as an object), or None to keep them [m].
+        wrong_object_margin: after the lift, a still standing candidate whose calibrated `probability`
+            exceeds the held object's by more than this means the wrong object was picked [-]. The held
+            object is seen lifted and partly hidden by the gripper, which lowers its own match (its height
+            above the table, size class and shape are measured on that view), so a small lead of a standing
+            object is no evidence; the probabilities sum to at most 1, so a lead of 0.3 leaves the held one
+            at most 0.35 and the other at least ~1.9 times as likely. Judged only for a command naming one
+            object with `candidate_order="score"`: a plural command or a stack takes any object that fits.
+        retry_wrong_object: after putting a wrong object back, try the candidate that fits better, once;
+            False ends the run "wrong_object".
         grasp: `GraspConfig` of the planner.
     """
 
@@ -182,6 +215,8 @@ class PickConfig:
     wrist_look_m: float = 0.15
     wrist_max_shift_m: float = 0.10
     self_filter_margin_m: float | None = 0.03
+    wrong_object_margin: float = 0.3
+    retry_wrong_object: bool = True
     grasp: GraspConfig | None = None
 
     def __post_init__(self) -> None:
@@ -217,6 +252,10 @@ class PickConfig:
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
                 raise InvalidInputError(f"PickConfig.{name} must be finite and > 0, got {v}")
+        if not 0.0 < float(self.wrong_object_margin) < 1.0:  # a difference of probabilities
+            raise InvalidInputError(
+                f"PickConfig.wrong_object_margin must be in (0, 1), got {self.wrong_object_margin}"
+            )
         r = self.candidate_max_size_ratio
         if r is not None and not (math.isfinite(float(r)) and float(r) >= 1.0):
             raise InvalidInputError(f"PickConfig.candidate_max_size_ratio must be None or >= 1, got {r}")
@@ -238,12 +277,26 @@ _CANDIDATE_ORDERS = ("top_first", "score")
 
 
 class _Abort(Exception):
-    """Ends a run with a typed reason (internal; never escapes `run`)."""
+    """Ends a run with a typed reason (internal; never escapes `run`). `estimates` (camera frame of
+    `T_base_cam`) go into the outcome ("ambiguous": the contenders); "wrong_object" says where the object put
+    back stands (`held_at`) and where the one that fits better does (`retry_at`), in base [m]."""
 
-    def __init__(self, reason: str, message: str):
+    def __init__(
+        self,
+        reason: str,
+        message: str,
+        estimates: Sequence[Any] = (),
+        T_base_cam: np.ndarray | None = None,
+        held_at: np.ndarray | None = None,
+        retry_at: np.ndarray | None = None,
+    ):
         super().__init__(message)
         self.reason = reason
         self.message = message
+        self.estimates = tuple(estimates)
+        self.T_base_cam = T_base_cam
+        self.held_at = held_at
+        self.retry_at = retry_at
 
 
 @dataclass(frozen=True, eq=False)
@@ -375,6 +428,8 @@ class PickAndPlace:
                     self._go_home(q_home)
             return finish("success", self._success_message(cmd, state))
         except _Abort as exc:
+            state["estimates"].extend(exc.estimates)
+            state["T_base_cams"].extend([exc.T_base_cam] * len(exc.estimates))
             return finish(exc.reason, exc.message)
 
     def _one_object(
@@ -389,9 +444,13 @@ class PickAndPlace:
         """Observe-estimate-plan-execute rounds for one object until it is held (and placed)."""
         last = _Abort("not_found", "no attempt was made")
         tried_at = None  # where the object tried in the last failed round stood (base) [m]
-        for round_ in range(self.config.max_estimates):
+        avoid: list[np.ndarray] = []  # where a wrong object put back stands (base) [m]: not tried again
+        rounds, round_ = self.config.max_estimates, 0
+        while round_ < rounds:
             self._check_time(t_start)
-            observations, frame = self._observe_candidates(cmd, fixture, timings, state, round_, tried_at)
+            observations, frame = self._observe_candidates(
+                cmd, fixture, timings, state, round_, tried_at, avoid
+            )
             place_target = fixture
             if cmd.action in ("place", "stack") and fixture is None:
                 place_target = self._ground_place_target(cmd, frame, observations[0], timings, state)
@@ -403,9 +462,20 @@ class PickAndPlace:
                     raise
                 last = exc
                 logger.info("round %d failed: %s (%s)", round_ + 1, exc.reason, exc.message)
-                if self.config.candidate_order == "score":  # a stack of like things: any of them will do
+                if exc.reason == "wrong_object":
+                    if exc.retry_at is None:  # not put back: still held, the arm stays where it is
+                        raise
+                    if not self.config.retry_wrong_object or avoid:
+                        self._go_home(q_home)
+                        raise
+                    # Once, in a round of its own: the better candidate first, the one put back never again.
+                    rounds += 1
+                    avoid.append(np.asarray(exc.held_at))
+                    tried_at = np.asarray(exc.retry_at)
+                elif self.config.candidate_order == "score":  # a stack of like things: any of them will do
                     tried_at = observations[0].target.pose.t
                 self._go_home(q_home)
+            round_ += 1
         raise last
 
     # ------------------------------------------------------------------------------------------- stages
@@ -462,14 +532,19 @@ class PickAndPlace:
         return dataclasses.replace(frame, depth_m=np.where(on_robot, np.float32(0.0), frame.depth_m))
 
     def _estimates(
-        self, prompt: str, timings: dict[str, float], min_score_ratio: float | None = None
+        self,
+        prompt: str,
+        timings: dict[str, float],
+        min_score_ratio: float | None = None,
+        judge: bool = False,
     ) -> tuple[RGBDFrame, list[Any]]:
         """Capture `observe_frames` frames and estimate the prompt: the candidates, best first (one with a
         tracker over several frames or an estimator without `estimate_all`). Nothing found is retried on
-        fresh frames `camera_retries` times (a transient depth hole or occlusion) before "not_found"."""
+        fresh frames `camera_retries` times (a transient depth hole or occlusion) before "not_found"; an
+        "ambiguous" answer (`judge`) is not retried."""
         for k in range(self.config.camera_retries):
             try:
-                return self._estimates_once(prompt, timings, min_score_ratio)
+                return self._estimates_once(prompt, timings, min_score_ratio, judge)
             except _Abort as exc:
                 if exc.reason != "not_found" or k + 1 == self.config.camera_retries:
                     raise
@@ -477,11 +552,20 @@ class PickAndPlace:
         raise _Abort("not_found", "no observation")  # not reached: the loop returns or raises
 
     def _estimates_once(
-        self, prompt: str, timings: dict[str, float], min_score_ratio: float | None = None
+        self,
+        prompt: str,
+        timings: dict[str, float],
+        min_score_ratio: float | None = None,
+        judge: bool = False,
     ) -> tuple[RGBDFrame, list[Any]]:
         """Capture and estimate; the candidates' estimates, best first (those scoring under `min_score_ratio`
-        of the best are not fitted; `candidate_ratio` when None)."""
+        of the best are not fitted; `candidate_ratio` when None).
+
+        The best estimate's `contenders` (or `AmbiguousObjectError`, whose estimates are then the answer):
+        0 is "not_found"; 2 or more is "ambiguous" when `judge` (the command names one object and any of
+        them will not do), else the contenders are candidates like any; -1 (not judged) changes nothing."""
         ratio = self.config.candidate_ratio if min_score_ratio is None else min_score_ratio
+        refused: AmbiguousObjectError | None = None
         t0 = time.perf_counter()
         frames = [self._capture() for _ in range(self.config.observe_frames)]
         timings["observe"] += time.perf_counter() - t0
@@ -498,13 +582,28 @@ class PickAndPlace:
                     raise ObjectNotFoundError(f"no object in the frame matches {prompt!r}")
             else:
                 ests = [self.estimator.estimate(frames[0], prompt)]
+        except AmbiguousObjectError as exc:  # `estimate` / `track` would not choose among its estimates
+            refused, ests = exc, list(exc.estimates)
         except ObjectNotFoundError as exc:
             raise _Abort("not_found", str(exc)) from None
         except InvalidInputError as exc:  # e.g. a depth image without a single reading
             raise _Abort("not_found", f"the frame cannot be used: {exc}") from None
         finally:
             timings["estimate"] += time.perf_counter() - t0
-        return frames[-1], ests
+        frame = frames[-1]
+        contenders = int(getattr(ests[0], "contenders", -1)) if ests else -1
+        if refused is not None:
+            contenders = max(contenders, len(ests), 2)
+        if contenders == 0:
+            raise _Abort("not_found", f"nothing in the frame fits the words of {prompt!r}")
+        if judge and contenders >= 2:
+            T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
+            fit = ests[:contenders]
+            message = describe_contenders(prompt, fit, T_base_cam, contenders) if fit else str(refused)
+            raise _Abort("ambiguous", message, fit, T_base_cam)
+        if not ests:  # refused without an estimate to show
+            raise _Abort("not_found", str(refused))
+        return frame, ests
 
     def _estimate(self, prompt: str, timings: dict[str, float]) -> tuple[RGBDFrame, Any]:
         frame, ests = self._estimates(prompt, timings)
@@ -530,6 +629,7 @@ class PickAndPlace:
         state: dict[str, Any],
         round_: int,
         tried_at: np.ndarray | None = None,
+        avoid: Sequence[np.ndarray] = (),
     ) -> tuple[list[_Observation], RGBDFrame]:
         """Observe and estimate; the candidates that count as the object, in the order they are tried.
 
@@ -538,12 +638,17 @@ class PickAndPlace:
         top carton could not be carried past the forearm, the next round took its neighbour). Objects do not
         move by themselves: a candidate still there (within `_SAME_PLACE_M`) is tried first, whatever its
         score this time (a noisy frame can rank a neighbour higher, or put the target's score under
-        `candidate_ratio`)."""
-        frac = round_ / self.config.max_estimates
+        `candidate_ratio`).
+
+        `avoid`: where a wrong object was put back (base) [m]; a candidate there (within `_SAME_PLACE_M`) is
+        not tried. The first observation of an object judges ambiguity (`_estimates_once`) unless the
+        command takes any object that fits: a plural one, or `candidate_order` "top_first" (like things)."""
+        frac = min(round_ / self.config.max_estimates, 1.0)
         q_seen = np.asarray(self.arm.joint_positions(), dtype=np.float64)
         self._emit("observe", f"observing ({self.config.observe_frames} frame(s))", 0.05 + 0.9 * frac)
         ratio = self.config.candidate_ratio if tried_at is None else 0.0
-        frame, ests = self._estimates(cmd.object_prompt, timings, ratio)
+        judge = tried_at is None and not self._any_will_do(cmd)
+        frame, ests = self._estimates(cmd.object_prompt, timings, ratio, judge)
         T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
         points = transform_points(T_base_cam, back_project(frame.depth_m, frame.intrinsics))
         stride = max(1, len(points) // self.config.max_scene_points)
@@ -552,6 +657,8 @@ class PickAndPlace:
         observations, still_there = [], []
         for est in ests:
             target, support = self._to_base(est, T_base_cam, "target")
+            if any(np.linalg.norm(target.pose.t - p) <= _SAME_PLACE_M for p in avoid):
+                continue  # the wrong object, put back
             if tried_at is not None and np.linalg.norm(target.pose.t - tried_at) <= _SAME_PLACE_M:
                 still_there.append(_Observation(frame, est, target, support, points, q_seen))
                 continue
@@ -561,6 +668,8 @@ class PickAndPlace:
                 continue  # already where the command wants it
             observations.append(_Observation(frame, est, target, support, points, q_seen))
         if not observations and not still_there:
+            if avoid:
+                raise _Abort("not_found", f"no {cmd.object_prompt!r} in view but the wrong object put back")
             raise _Abort("not_found", f"every {cmd.object_prompt!r} in view is already on the {cmd.target}")
         if self.config.candidate_order == "top_first":
             # What lies on top first (the top layer of a stack): highest top along the support normal.
@@ -611,6 +720,11 @@ class PickAndPlace:
         prompt = cmd.target_prompt
         try:
             est = self.estimator.estimate(frame, prompt)
+        except AmbiguousObjectError as exc:
+            T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
+            fit = exc.estimates
+            text = describe_contenders(prompt, fit, T_base_cam) if fit else str(exc)
+            raise _Abort("ambiguous", f"place target: {text}", fit, T_base_cam) from None
         except ObjectNotFoundError as exc:
             raise _Abort("not_found", f"place target: {exc}") from None
         except InvalidInputError as exc:
@@ -762,12 +876,14 @@ class PickAndPlace:
             try:
                 if place_target is None or held_scene is None:
                     width = self._pick(grasp, scene, timings)
-                    self._reobserve(cmd.object_prompt, obs.target, obs.support, timings, state)
+                    self._reobserve(cmd, obs, grasp, timings, state)
                 else:
-                    width = self._pick_place(obs, grasp, place_target, scene, held_scene, timings, state, n)
+                    width = self._pick_place(
+                        obs, grasp, place_target, scene, held_scene, timings, state, n, cmd
+                    )
             except _Abort as exc:
                 state["attempts"].append(AttemptRecord(n, grasp, exc.reason, exc.message))
-                if exc.reason in ("timeout", "camera_failed"):
+                if exc.reason in ("timeout", "camera_failed", "wrong_object"):  # not another grasp of it
                     raise
                 failures.append(exc)
                 if exc.reason == "slipped":  # the object may have moved: re-estimate
@@ -1148,13 +1264,15 @@ class PickAndPlace:
 
     def _reobserve(
         self,
-        prompt: str,
-        before: ObjectModel,
-        support: Plane | None,
+        cmd: Command,
+        obs: _Observation,
+        grasp: Any,
         timings: dict[str, float],
         state: dict[str, Any],
+        slip_check: bool = True,
     ) -> None:
-        """After the lift: the object must no longer be seen where it stood.
+        """After the lift: the object must no longer be seen where it stood (`slip_check`), and what is held
+        must be the object named (`_wrong_object`; else it is put back and the attempt is "wrong_object").
 
         A candidate moved when its centre moved or its top rose by `moved_min_m`: the lifted object seen in
         the hand is partly hidden by the gripper and its amodal box can reach down to the table (a 31 cm
@@ -1163,8 +1281,10 @@ class PickAndPlace:
         if not self.config.reobserve:
             return
         self._emit("verify", "re-observing", 0.8)
+        before, support = obs.target, obs.support
         try:
-            frame, ests = self._estimates(prompt, timings)
+            # Every candidate: one that fits the prompt better may have scored under the ratio before.
+            frame, ests = self._estimates(cmd.object_prompt, timings, 0.0)
         except _Abort as exc:
             if exc.reason == "not_found":  # lifted out of view or hidden by the gripper: not where it stood
                 return
@@ -1178,15 +1298,110 @@ class PickAndPlace:
             rise = _top_height(after, support) - top_before
             return max(float(np.linalg.norm(after.pose.t - before.pose.t)), rise)
 
-        # Any candidate still standing where the target stood means it was not lifted.
-        est = min(ests, key=displacement)
+        # Any candidate still standing where the target stood means it was not lifted (those within
+        # `candidate_ratio` of the best score, as fitted before every candidate was).
+        best = max(float(getattr(e, "score", 1.0)) for e in ests)
+        near = [e for e in ests if float(getattr(e, "score", 1.0)) >= self.config.candidate_ratio * best]
+        est = min(near, key=displacement)
         moved = displacement(est)
+        wrong = self._wrong_object(cmd, obs, frame, ests)
         timings["verify"] += time.perf_counter() - t0
         state["estimates"].append(est)
         state["T_base_cams"].append(T_base_cam)
-        if moved < self.config.moved_min_m:
+        if slip_check and moved < self.config.moved_min_m:
             self.gripper.open()
             raise _Abort("slipped", f"the object is still where it stood (moved {1e3 * moved:.0f} mm)")
+        if wrong is not None:
+            self._put_back(cmd, obs, grasp, frame, *wrong)
+
+    def _any_will_do(self, cmd: Command) -> bool:
+        """Any object that fits the prompt will do: a plural command, or a stack of like things
+        (`candidate_order` "top_first"); else the command names one object, and which one matters."""
+        return cmd.plural or self.config.candidate_order == "top_first"
+
+    def _wrong_object(
+        self, cmd: Command, obs: _Observation, frame: RGBDFrame, ests: Sequence[Any]
+    ) -> tuple[Any, Any, str] | None:
+        """(held, the candidate that should have been picked, why) when the re-observation after the lift
+        says the held object is not the one named; None when it is, or when it cannot tell (fails closed).
+
+        The held object is the candidate nearest the tcp among those hanging under it (centre within half
+        the object's largest extent plus `_HELD_XY_SLACK_M` of the tcp, across). The others count when they
+        stand away from the tcp and from where the object was picked (`_SAME_PLACE_M`) and where the camera
+        saw an object before the pick (`_stood_before`). Wrong: one of them fits the prompt clearly better
+        (`wrong_object_margin`; only for a command naming one object with `candidate_order` "score"), or the
+        prompt names a colour the held object's visible pixels clearly lack (`_COLOUR_ABSENT`) while one of
+        them shows it (`_COLOUR_SHOWN`)."""
+        if len(ests) < 2:
+            return None
+        T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
+        tcp = np.asarray(self.robot.fk_tcp(self.arm.joint_positions()), dtype=np.float64)[:3, 3]
+        poses = [e.pose.transformed(T_base_cam) for e in ests]
+        reach = 0.5 * float(np.max(obs.target.pose.size)) + _HELD_XY_SLACK_M
+        hanging = [k for k, p in enumerate(poses) if _across(p.t, tcp) <= reach]
+        if not hanging:
+            return None  # the held object is not among the candidates: nothing to judge
+        k_held = min(hanging, key=lambda k: float(np.linalg.norm(poses[k].t - tcp)))
+        held = ests[k_held]
+        standing = [
+            e
+            for k, (e, p) in enumerate(zip(ests, poses))
+            if k != k_held
+            and min(_across(p.t, tcp), _across(p.t, obs.target.pose.t)) > _SAME_PLACE_M
+            and _stood_before(p, obs)
+        ]
+        if not standing:
+            return None
+        p_held = _probability(held)
+        judged = [e for e in standing if math.isfinite(_probability(e))]
+        if judged and math.isfinite(p_held) and not self._any_will_do(cmd):
+            other = max(judged, key=_probability)
+            if _probability(other) - p_held > self.config.wrong_object_margin:
+                return held, other, f"p {p_held:.2f} against {_probability(other):.2f}"
+        colour = prompt_colour(cmd.object_prompt)
+        if colour is None:
+            return None
+
+        def share(e: Any) -> float:
+            return colour_share(frame.rgb, getattr(e, "mask", None), colour, frame.depth_m)
+
+        s_held = share(held)
+        shown = [(share(e), e) for e in standing]
+        shown = [(s, e) for s, e in shown if math.isfinite(s)]
+        if not (shown and math.isfinite(s_held) and s_held < _COLOUR_ABSENT):
+            return None
+        s_other, other = max(shown, key=lambda se: se[0])
+        if s_other < _COLOUR_SHOWN:
+            return None
+        return held, other, f"{100 * s_held:.0f} % {colour} pixels against {100 * s_other:.0f} %"
+
+    def _put_back(
+        self, cmd: Command, obs: _Observation, grasp: Any, frame: RGBDFrame, held: Any, other: Any, why: str
+    ) -> None:
+        """Put the wrong object back where it stood (the lift line back down to the grasp pose, validated
+        before it is sent, then `_release_and_back_off`), and end the attempt "wrong_object"."""
+        cfg = self.config
+        T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
+        seen = getattr(getattr(held, "attributes", None), "description", "") or "another object"
+        # Where the one named stands, from the camera, relative to where the held one stood.
+        stood_cam = transform_points(invert_T(T_base_cam), obs.target.pose.t[None])[0]
+        where = positions(np.array([np.asarray(other.pose.t, dtype=np.float64), stood_cam]))[0]
+        named = phrase(other, object_noun(cmd.object_prompt), where, T_base_cam)
+        message = f"holding {seen}, not {cmd.object_prompt!r} ({why}): that is more likely {named}"
+        self._emit("verify", f"wrong object: {message}; putting it back", 0.85)
+        try:
+            for T in (grasp.T_base_tcp, grasp.T_base_retreat):
+                self.validator.validate_linear_move(T, cfg.linear_speed_m_s, cfg.linear_accel_m_s2)
+            self.arm.move_linear(grasp.T_base_tcp, cfg.linear_speed_m_s, cfg.linear_accel_m_s2)
+        except (UnreachableError, UnsafeCommandError) as exc:
+            raise _Abort("wrong_object", f"{message}; it could not be put back ({exc}): still held") from None
+        self._release_and_back_off(grasp)
+        raise _Abort(
+            "wrong_object",
+            f"{message}; put it back where it stood",
+            held_at=np.array(obs.target.pose.t),
+            retry_at=np.array(other.pose.transformed(T_base_cam).t),
+        )
 
     def _pick_place(
         self,
@@ -1198,6 +1413,7 @@ class PickAndPlace:
         timings: dict[str, float],
         state: dict[str, Any],
         attempt: int,
+        cmd: Command,
     ) -> float:
         t0 = time.perf_counter()
         q_now = np.asarray(self.arm.joint_positions(), dtype=np.float64)
@@ -1246,6 +1462,9 @@ class PickAndPlace:
                     timings["execute"] += time.perf_counter() - t0
                     width = self._verify_held(grasp, timings)
                     t0 = time.perf_counter()
+                    # Held is the object named? (a slip shows at the descent: no slip check here)
+                    self._reobserve(cmd, obs, grasp, timings, state, slip_check=False)
+                    t0 = time.perf_counter()
                 elif seg.name == "descend":
                     if not self.gripper.grasp_detected():
                         self.gripper.open()
@@ -1288,6 +1507,22 @@ _SAME_PLACE_M = 0.06
 _MAX_DEEPEN_M = 0.03
 #: Observed points this close to a place surface are the surface itself [m] (sensor noise at 1-2 m).
 _SURFACE_BAND_M = 0.02
+#: After the lift, the held object's centre lies across from the tcp by at most half its largest extent (a
+#: grasp on a side face) plus this: the estimate of an object half hidden in the hand is off by 1-2 cm [m].
+_HELD_XY_SLACK_M = 0.03
+#: A candidate stood there before the pick when the pick's observed points, above the support by more than
+#: this, lie inside its box grown by this: the fitted box's faces are ~1 cm off the surface it was fitted to,
+#: and the table's own points stay under it [m] ...
+_STOOD_MARGIN_M = 0.01
+#: ... at least this many of them: the observation is thinned to `max_scene_points` (every 7th point of 640 x
+#: 480), which leaves ~200 on the top of a 5 cm object at 0.8 m (fx 600 px); 20 is a corner of one [-].
+_STOOD_MIN_POINTS = 20
+#: A held object whose visible pixels are under this share of the colour the prompt names clearly is not of
+#: that colour: one that is keeps far more even half hidden by the jaws (a green bottle with a white label),
+#: while a few percent are edge pixels blended with what lies behind [-] ...
+_COLOUR_ABSENT = 0.03
+#: ... while another candidate shows it on at least this share: that colour, not a printed detail [-].
+_COLOUR_SHOWN = 0.25
 
 
 def _aim_camera(T_base_tcp: np.ndarray, T_tcp_cam: np.ndarray, point: np.ndarray) -> np.ndarray:
@@ -1335,6 +1570,28 @@ def _at_target(obj: ObjectModel, target: PlaceTarget) -> bool:
     T = target.T_base_surface
     local = T[:3, :3].T @ (obj.pose.t - T[:3, 3])
     return bool(np.all(np.abs(local[:2]) <= target.half_extents_xy_m) and -0.02 < local[2] < 1.0)
+
+
+def _across(a: np.ndarray, b: np.ndarray) -> float:
+    """Horizontal distance of two base-frame points (across base +z) [m]."""
+    return float(np.linalg.norm((np.asarray(a) - np.asarray(b))[:2]))
+
+
+def _probability(est: Any) -> float:
+    """The estimate's calibrated probability of being the object named (NaN when not computed)."""
+    return float(getattr(est, "probability", math.nan))
+
+
+def _stood_before(pose_base: Pose9D, obs: _Observation) -> bool:
+    """The camera saw an object inside this box before the pick: `_STOOD_MIN_POINTS` of the pick's observed
+    points in it (grown by `_STOOD_MARGIN_M`), above its support plane (without a plane: in the box)."""
+    P = obs.points_base
+    local = (P - pose_base.t) @ pose_base.R
+    grow = _STOOD_MARGIN_M if obs.support is not None else 0.0
+    inside = np.all(np.abs(local) <= 0.5 * np.asarray(pose_base.size) + grow, axis=1)
+    if obs.support is not None:
+        inside &= P @ np.asarray(obs.support.normal) + obs.support.offset_m > _STOOD_MARGIN_M
+    return int(np.count_nonzero(inside)) >= _STOOD_MIN_POINTS
 
 
 def _overlaps(a: ObjectModel, b: ObjectModel) -> bool:

@@ -309,7 +309,7 @@ def test_a_grasp_whose_approach_line_flips_a_wrist_is_not_continuous():
     assert not PickAndPlace._lines_continuous(SimpleNamespace(robot=_JumpyRobot()), grasp)
 
 
-def test_reasons_are_the_issue_list_plus_not_understood():
+def test_reasons_are_the_issue_list_plus_not_understood_ambiguous_and_wrong_object():
     assert REASONS == (
         "success",
         "not_found",
@@ -320,7 +320,11 @@ def test_reasons_are_the_issue_list_plus_not_understood():
         "timeout",
         "camera_failed",
         "not_understood",
+        "ambiguous",
+        "wrong_object",
     )
+    for reason in REASONS:  # every reason makes an outcome and its JSON summary
+        assert PickOutcome(reason, "m").to_dict()["reason"] == reason
 
 
 def test_aim_camera_puts_the_target_on_the_optical_axis():
