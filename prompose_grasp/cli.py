@@ -179,13 +179,24 @@ def _add_bench_pick(sub: argparse._SubParsersAction) -> None:
         "wall seconds); --oracle-mask uses the simulator's mask of the target (benchmark only) to separate "
         "perception from grasping failures; --real-meshes uses ../shared/data/objects.",
     )
-    p.add_argument("--scenario", required=True, help="tabletop_household | logistics_pallet | real_meshes")
+    p.add_argument(
+        "--scenario",
+        required=True,
+        help="tabletop_household | logistics_pallet | logistics_palletise | real_meshes | lookalikes",
+    )
     p.add_argument("--episodes", type=int, default=20, help="seeded episodes (default 20)")
     p.add_argument("--seed0", type=int, default=0, help="first seed (default 0)")
     p.add_argument("--oracle-mask", action="store_true", help="ORACLE: the sim's mask instead of grounding")
     p.add_argument("--real-meshes", action="store_true", help="tabletop with the ../shared meshes")
     p.add_argument("--place", action="store_true", help="tabletop: 'put the X in the bin'")
+    p.add_argument(
+        "--prompts",
+        choices=("colour+name", "name"),
+        default=None,
+        help="what the command says: 'the red banana' (colour+name) or 'the banana' (name)",
+    )
     p.add_argument("--json", dest="json_out", default=None, help="write the report here")
+    p.add_argument("--out", default=None, help="also write each episode's summary and overlay under DIR")
     p.set_defaults(func=_run_bench_pick)
 
 
@@ -198,8 +209,9 @@ def _run_bench_pick(args: argparse.Namespace) -> int:
     for flag in ("oracle_mask", "real_meshes", "place"):
         if getattr(args, flag):
             cmd.append("--" + flag.replace("_", "-"))
-    if args.json_out:
-        cmd += ["--json", args.json_out]
+    for flag, value in (("--prompts", args.prompts), ("--json", args.json_out), ("--out", args.out)):
+        if value:
+            cmd += [flag, value]
     return subprocess.call(cmd)
 
 

@@ -87,3 +87,24 @@ WALL_OBJECTS = (
 def render_wall_scene(width: int = 640, height: int = 480, seed: int = 0) -> SceneFrame:
     """The table of `render_scene` with `WALL_OBJECTS` on it, seen by the same camera."""
     return _render_table_scene("grounding_wall_test", WALL_OBJECTS, width, height, seed)
+
+
+#: Look-alikes that only object knowledge tells apart: three grey cans of real products' sizes (a tuna can,
+#: a 12 oz soda can, a large coffee can) and three bottles of one size and shape in the colours of a mustard,
+#: a ketchup and a bleach bottle. (name, family, params, rgb, (x, y) [m], yaw [rad]).
+SIZE_ONLY_CANS = (
+    ("tuna", "can", {"radius_m": 0.0425, "height_m": 0.040}, (0.55, 0.55, 0.57), (-0.25, 0.02), 0.0),
+    ("soda", "can", {"radius_m": 0.033, "height_m": 0.122}, (0.55, 0.55, 0.57), (0.0, 0.05), 0.0),
+    ("coffee", "can", {"radius_m": 0.0655, "height_m": 0.17}, (0.55, 0.55, 0.57), (0.25, 0.02), 0.0),
+)  # fmt: skip
+_BOTTLE = {"radius_m": 0.032, "height_m": 0.19, "neck_ratio": 0.4, "shoulder_ratio": 0.6}
+COLOUR_ONLY_BOTTLES = (
+    ("mustard", "bottle", _BOTTLE, (0.9, 0.78, 0.1), (0.22, 0.0), 0.0),
+    ("ketchup", "bottle", _BOTTLE, (0.8, 0.1, 0.08), (-0.22, 0.02), 0.0),
+    ("bleach", "bottle", _BOTTLE, (0.93, 0.93, 0.93), (0.0, 0.1), 0.0),
+)  # fmt: skip
+
+
+def render_lookalikes(objects, width: int = 640, height: int = 480, seed: int = 0) -> SceneFrame:
+    """The table of `render_scene` with look-alike `objects` (`SIZE_ONLY_CANS`, `COLOUR_ONLY_BOTTLES`)."""
+    return _render_table_scene("grounding_lookalikes_test", objects, width, height, seed)

@@ -285,3 +285,62 @@ def test_a_wall_is_background_and_the_box_leaning_on_it_is_found(wall_scene, gro
         scene, grounder.ground(scene.rgb, scene.depth_m, scene.intrinsics, "the red mug")
     )
     assert found == "mug" and overlap >= MIN_NAMED_IOU
+
+
+def test_two_identical_cups_are_ambiguous_until_the_prompt_tells_them_apart(scene, grounder):
+    both = {scene.ids["cup_left"], scene.ids["cup_right"]}
+    result = grounder.ground(scene.rgb, scene.depth_m, scene.intrinsics, "the purple cup")
+    assert result.ambiguous and result.contenders == 2
+    best_two = {matching_object(scene, c.mask)[0] for c in result.candidates[:2]}
+    assert {scene.ids[n] for n in best_two} == both
+    told = grounder.ground(scene.rgb, scene.depth_m, scene.intrinsics, "the purple cup left of the bowl")
+    assert told.contenders == 1 and best_object(scene, told)[0] == "cup_left"
+    # a clear winner by colour: probability near 1, margin large
+    mug = grounder.ground(scene.rgb, scene.depth_m, scene.intrinsics, "the red mug")
+    assert mug.contenders == 1
+    assert mug.candidates[0].probability > 0.75 and mug.margin > 0.5
+
+
+def test_probabilities_are_a_distribution_over_the_candidates_and_none(scene, grounder):
+    result = grounder.ground(scene.rgb, scene.depth_m, scene.intrinsics, "the bowl")
+    p = np.array([c.probability for c in result.candidates])
+    assert np.all((p >= 0.0) & (p <= 1.0)) and p.sum() <= 1.0 + 1e-9
+    assert np.all(np.diff(p) <= 1e-12)  # best first, as the scores
+
+
+@pytest.fixture(scope="module")
+def cans():
+    from grounding_scene import SIZE_ONLY_CANS, render_lookalikes
+
+    return render_lookalikes(SIZE_ONLY_CANS)
+
+
+@pytest.fixture(scope="module")
+def bottles():
+    from grounding_scene import COLOUR_ONLY_BOTTLES, render_lookalikes
+
+    return render_lookalikes(COLOUR_ONLY_BOTTLES)
+
+
+@pytest.mark.parametrize(
+    ("prompt", "name"), [("the tuna can", "tuna"), ("the soda can", "soda"), ("the coffee can", "coffee")]
+)
+def test_only_the_named_objects_size_tells_three_grey_cans_apart(cans, grounder, prompt, name):
+    result = grounder.ground(cans.rgb, cans.depth_m, cans.intrinsics, prompt)
+    found, overlap = best_object(cans, result)
+    assert found == name and overlap >= MIN_NAMED_IOU
+    assert result.contenders == 1
+
+
+@pytest.mark.parametrize(
+    ("prompt", "name"), [("the mustard bottle", "mustard"), ("the ketchup bottle", "ketchup")]
+)
+def test_only_the_named_objects_colour_tells_three_bottles_apart(bottles, grounder, prompt, name):
+    result = grounder.ground(bottles.rgb, bottles.depth_m, bottles.intrinsics, prompt)
+    found, overlap = best_object(bottles, result)
+    assert found == name and overlap >= MIN_NAMED_IOU
+
+
+def test_three_bottles_of_one_size_are_ambiguous_for_the_bare_kind(bottles, grounder):
+    result = grounder.ground(bottles.rgb, bottles.depth_m, bottles.intrinsics, "the bottle")
+    assert result.ambiguous

@@ -357,8 +357,7 @@ def fit_confidence_from_records(records: list[dict[str, Any]]) -> ConfidenceMode
         for r in records
         if r["kind"] != "absent" and r.get("totals")
     ]
-    absent = [np.asarray(r["totals"]) for r in records if r["kind"] == "absent" and r.get("totals")]
-    return fit_confidence(prompts, absent)
+    return fit_confidence(prompts)
 
 
 def reliability_svg(reliability: list[dict[str, Any]], title: str) -> str:

@@ -98,8 +98,10 @@ already span the kind's variation, so one extent outside them counts. Colour: th
 typical colours in the mask, +1 from 50 % (a label rarely covers less) down to -0.3 at none (a kind's
 typical colour is usual, not certain: a blue bowl is still a bowl); only when the prompt names no colour,
 since a colour word is the user's own. Shape: the coarse shape's fit to the measured
-family. When the noun's match has a weight of at least 0.5, its size range replaces the library family's
-typical size in the metric size term (a named product's range is more specific than its family's mean).
+family. When the table names the noun more closely than the prior library does (its match's similarity
+above the library's, and a weight of at least 0.5: "sugar box" is an entry, the library only has boxes),
+its size range replaces the family's typical size in the metric size term; for a family's own name
+("bowl") both count.
 
 The returned score is sigmoid(2 (total - 1)): in (0, 1), monotone in the total, comparable within a prompt.
 The totals themselves (`candidate_totals`) give the calibrated match probabilities (`confidence`).
@@ -346,8 +348,14 @@ def _base_terms(
         )
     if knowledge is not None:
         total += knowledge_terms(parsed, feats, knowledge, w)
-    # a family's typical size is a coarser guess than the named object's own range: it gives way to it
-    knows_size = knowledge is not None and knowledge.weight >= w.knowledge_replaces_family_size
+    # a family's typical size is a coarser guess than the range of a product the table names more closely
+    # than the library does ("sugar box" against the box family): it gives way to that range
+    knows_size = (
+        knowledge is not None
+        and noun_prior is not None
+        and knowledge.weight >= w.knowledge_replaces_family_size
+        and knowledge.similarity > noun_prior.match_score
+    )
     if noun_prior is not None and parsed.size is None and not knows_size:
         total += w.metric_size * metric_size_term(feats.extents_m, noun_prior.typical_extent_m, w)
     if (
