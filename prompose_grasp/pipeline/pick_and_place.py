@@ -1356,7 +1356,11 @@ class PickAndPlace:
         judged = [e for e in standing if math.isfinite(_probability(e))]
         if judged and math.isfinite(p_held) and not self._any_will_do(cmd):
             other = max(judged, key=_probability)
-            if _probability(other) - p_held > self.config.wrong_object_margin:
+            # The held object is seen in the air and partly behind the jaws, so its own probability reads
+            # low whatever it is; a standing one only counts when it also fits the words about as well as
+            # the object chosen before the pick did (measured the same way, standing on the table)
+            as_well = _total(other) >= _total(obs.estimate) - _AS_WELL_AS_TOTAL
+            if as_well and _probability(other) - p_held > self.config.wrong_object_margin:
                 return held, other, f"p {p_held:.2f} against {_probability(other):.2f}"
         colour = prompt_colour(cmd.object_prompt)
         if colour is None:
@@ -1541,6 +1545,20 @@ def _size_ratio(size: np.ndarray, ref_sorted: np.ndarray) -> float:
     a = np.maximum(np.sort(np.asarray(size, dtype=np.float64)), 1e-6)
     b = np.maximum(np.asarray(ref_sorted, dtype=np.float64), 1e-6)
     return float(np.max(np.maximum(a / b, b / a)))
+
+
+#: A standing candidate "fits about as well" as the object chosen before the pick when its score total is
+#: within this of the chosen one's: T ln 2 of the grounder's calibration (`confidence.ConfidenceModel`,
+#: T 0.59), odds within a factor of two.
+_AS_WELL_AS_TOTAL = 0.41
+
+
+def _total(est: Any) -> float:
+    """The grounder's score total of an estimate (its score is sigmoid(2 (total - 1)); -inf without one)."""
+    s = float(getattr(est, "score", float("nan")))
+    if not 0.0 < s < 1.0:
+        return math.inf if s >= 1.0 else -math.inf
+    return 1.0 + 0.5 * math.log(s / (1.0 - s))
 
 
 def _score(obs: _Observation) -> float:

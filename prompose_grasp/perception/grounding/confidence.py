@@ -11,10 +11,11 @@ t_none are fitted on generated scenes whose true object is known (the grounding 
 `fit_confidence`): T by maximum likelihood, so that the probabilities match how often the best is right
 (docs/grounding.md, "Confidence"); t_none so that "nothing fits" rarely turns away an object that is there.
 
-Contenders (`contenders`): 0 when "none" is likelier than the best candidate (nothing fits the words), 1
-when the best is clear (its probability at least `clear_probability`, or no other within
-`contender_ratio` of it), else the number of candidates within `contender_ratio` of the best: the prompt
-does not tell them apart, and choosing one would be a guess.
+Contenders (`contenders`): 0 when "none" is likelier than the best candidate, or is the best's only rival
+within `contender_ratio` of it, or the best alone is under `pick_probability` (nothing fits the words, or
+whether the one that might is the object is a guess); 1 when the best is clear (its probability at least
+`clear_probability`, or nothing else within `contender_ratio` of it); else the number of candidates within
+`contender_ratio` of the best: the prompt does not tell them apart, and choosing one would be a guess.
 """
 
 from __future__ import annotations
@@ -38,6 +39,8 @@ class ConfidenceModel:
         clear_probability: a best candidate this probable is chosen whatever the runner-up.
         contender_ratio: candidates whose probability is at least this fraction of the best's contend with
             it (when the best is not clear).
+        pick_probability: a best candidate without contenders is chosen only at this probability or more
+            (0.5: likelier right than wrong).
     """
 
     # fitted on generated scenes (sim.dataset seed 41, 40 scenes x 2 frames, 644 prompts): the grounding
@@ -46,14 +49,16 @@ class ConfidenceModel:
     none_total: float = 0.88
     clear_probability: float = 0.75
     contender_ratio: float = 0.5
+    pick_probability: float = 0.5
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.temperature) and self.temperature > 0):
             raise InvalidInputError(f"temperature must be finite and > 0, got {self.temperature}")
         if not np.isfinite(self.none_total):
             raise InvalidInputError(f"none_total must be finite, got {self.none_total}")
-        if not 0.0 < self.clear_probability <= 1.0 or not 0.0 < self.contender_ratio <= 1.0:
-            raise InvalidInputError("clear_probability and contender_ratio must be in (0, 1]")
+        for name in ("clear_probability", "contender_ratio", "pick_probability"):
+            if not 0.0 < getattr(self, name) <= 1.0:
+                raise InvalidInputError(f"{name} must be in (0, 1], got {getattr(self, name)}")
 
 
 def match_probabilities(totals: np.ndarray, model: ConfidenceModel) -> tuple[np.ndarray, float]:
@@ -73,7 +78,12 @@ def contenders(probabilities: np.ndarray, p_none: float, model: ConfidenceModel)
         return 0
     if p[0] >= model.clear_probability:
         return 1
-    return max(1, int(np.count_nonzero(p >= model.contender_ratio * p[0])))
+    n = max(1, int(np.count_nonzero(p >= model.contender_ratio * p[0])))
+    if n == 1 and (p_none >= model.contender_ratio * p[0] or p[0] < model.pick_probability):
+        # "none of them" contends with the only candidate, or the best is likelier wrong than right (many
+        # weak candidates share the rest): whether the object is there at all is a guess
+        return 0
+    return n
 
 
 def fit_confidence(
@@ -114,4 +124,6 @@ def fit_confidence(
         return total
 
     res = minimize_scalar(nll, bounds=(np.log(0.05), np.log(5.0)), method="bounded")
-    return ConfidenceModel(float(np.exp(res.x)), t0, base.clear_probability, base.contender_ratio)
+    return ConfidenceModel(
+        float(np.exp(res.x)), t0, base.clear_probability, base.contender_ratio, base.pick_probability
+    )
