@@ -43,7 +43,12 @@ import cv2
 import numpy as np
 
 from prompose_grasp.geometry.camera import CameraIntrinsics
-from prompose_grasp.perception.grounding.confidence import ConfidenceModel, fit_confidence
+from prompose_grasp.perception.grounding.confidence import (
+    ConfidenceModel,
+    contenders,
+    fit_confidence,
+    match_probabilities,
+)
 from prompose_grasp.perception.grounding.describe import dominant_colour
 from prompose_grasp.perception.grounding.grounder import Grounder
 from prompose_grasp.perception.grounding.language import parse_prompt
@@ -140,9 +145,11 @@ def _confidence_record(result: Any, targets: list[np.ndarray]) -> dict[str, Any]
 def confidence_summary(records: list[dict[str, Any]], bins: int = 10) -> dict[str, Any]:
     """Reliability of the best candidate's probability and the refusal rates, per prompt kind.
 
-    A present-object prompt is a `pick` when one candidate is chosen (contenders 1): right or wrong
-    (`wrong_pick`); `ambiguous` (contenders >= 2) or `none` (0) are refusals. An absent-object prompt is
-    right when it ends in `none`.
+    A present-object prompt ends in one of: a pick (contenders 1), right or wrong (`wrong_pick`); `ambiguous`
+    (contenders >= 2), correct when two or more candidates are the prompt's object (a category prompt in a
+    scene with two mugs), else wrong; `none` (0), always wrong there. An absent-object prompt is right when
+    it ends in `none`. The reliability table uses the prompts with at most one right candidate: with two
+    mugs each holds about half the probability, and either is right.
     """
     out: dict[str, Any] = {}
     for kind in sorted({r["kind"] for r in records}):
@@ -150,17 +157,21 @@ def confidence_summary(records: list[dict[str, Any]], bins: int = 10) -> dict[st
         if not rs:
             continue
         n = len(rs)
-        picks = [r for r in rs if r["contenders"] == 1]
+        right_first = [bool(r["right"]) and r["right"][0] for r in rs]
+        multi = [sum(r["right"]) >= 2 for r in rs]
+        k = [r["contenders"] for r in rs]
         row = {
             "n": n,
-            "pick_right": sum(bool(r["right"]) and r["right"][0] for r in picks) / n,
-            "wrong_pick": sum(not (r["right"] and r["right"][0]) for r in picks) / n,
-            "ambiguous": sum(r["contenders"] >= 2 for r in rs) / n,
-            "none": sum(r["contenders"] == 0 for r in rs) / n,
+            "pick_right": sum(c == 1 and ok for c, ok in zip(k, right_first)) / n,
+            "wrong_pick": sum(c == 1 and not ok for c, ok in zip(k, right_first)) / n,
+            "ambiguous_correct": sum(c >= 2 and m for c, m in zip(k, multi)) / n,
+            "ambiguous_wrong": sum(c >= 2 and not m for c, m in zip(k, multi)) / n,
+            "none": sum(c == 0 for c in k) / n,
         }
-        if kind != "absent":
-            p = np.array([r["probabilities"][0] if r["probabilities"] else 0.0 for r in rs])
-            ok = np.array([bool(r["right"]) and r["right"][0] for r in rs])
+        unique = [i for i, r in enumerate(rs) if sum(r["right"]) <= 1]
+        if kind != "absent" and unique:
+            p = np.array([rs[i]["probabilities"][0] if rs[i]["probabilities"] else 0.0 for i in unique])
+            ok = np.array([right_first[i] for i in unique])
             edges = np.linspace(0.0, 1.0, bins + 1)
             idx = np.clip(np.digitize(p, edges) - 1, 0, bins - 1)
             row["reliability"] = [
@@ -174,9 +185,23 @@ def confidence_summary(records: list[dict[str, Any]], bins: int = 10) -> dict[st
             ]
             row["expected_calibration_error"] = float(
                 sum(np.sum(idx == b) * abs(p[idx == b].mean() - ok[idx == b].mean()) for b in range(bins)
-                    if np.any(idx == b)) / n
+                    if np.any(idx == b)) / len(unique)
             )  # fmt: skip
         out[kind] = row
+    return out
+
+
+def rescore(records: list[dict[str, Any]], model: ConfidenceModel | None = None) -> list[dict[str, Any]]:
+    """The records with probabilities and contenders recomputed from their totals under `model` (default:
+    the grounder's), so that a change of calibration is measured without grounding again."""
+    model = model or ConfidenceModel()
+    out = []
+    for r in records:
+        if "totals" not in r:
+            out.append(r)
+            continue
+        p, p_none = match_probabilities(np.asarray(r["totals"], dtype=np.float64), model)
+        out.append({**r, "probabilities": p.tolist(), "contenders": contenders(p, p_none, model)})
     return out
 
 
@@ -409,6 +434,39 @@ def reliability_svg(reliability: list[dict[str, Any]], title: str) -> str:
     return "\n".join(parts) + "\n"
 
 
+def _print_confidence(conf: dict[str, Any]) -> None:
+    print(
+        "\nconfidence (a pick: contenders 1; ambiguous: >= 2, correct when two or more are the object; "
+        "none: 0):"
+    )
+    head = ("kind", "n", "right pick", "wrong pick", "amb. correct", "amb. wrong", "none", "ECE")
+    print(f"  {head[0]:18} {head[1]:>5} " + " ".join(f"{h:>12}" for h in head[2:]))
+    for kind, c in conf.items():
+        ece = c.get("expected_calibration_error")
+        cells = [c["pick_right"], c["wrong_pick"], c["ambiguous_correct"], c["ambiguous_wrong"], c["none"]]
+        print(
+            f"  {kind:18} {c['n']:5d} "
+            + " ".join(f"{100 * v:11.1f}%" for v in cells)
+            + ("" if ece is None else f" {ece:12.3f}")
+        )
+
+
+def _write_reliability(res: dict[str, Any], path: Path) -> None:
+    rows = [(k, c) for k, c in res["confidence"].items() if "reliability" in c]
+    merged = [
+        {
+            "bin": rows[0][1]["reliability"][b]["bin"],
+            "n": sum(c["reliability"][b]["n"] for _, c in rows),
+            "mean_predicted": _weighted(rows, b, "mean_predicted"),
+            "observed": _weighted(rows, b, "observed"),
+        }
+        for b in range(len(rows[0][1]["reliability"]))
+    ]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(reliability_svg(merged, f"grounding confidence, {Path(res['data']).name}"))
+    print(f"wrote {path}")
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--data", type=Path, default=None, help="dataset folder (default: generate one)")
@@ -425,12 +483,29 @@ def main(argv: list[str] | None = None) -> None:
         help="fit the match-probability calibration to an earlier run's records and print it (no grounding)",
     )
     parser.add_argument(
+        "--rescore",
+        type=Path,
+        default=None,
+        metavar="RESULTS.json",
+        help="recompute an earlier run's probabilities and contenders under today's calibration "
+        "(no grounding)",
+    )
+    parser.add_argument(
         "--reliability-svg", type=Path, default=None, help="draw the reliability diagram of this run here"
     )
     args = parser.parse_args(argv)
     if args.fit_confidence is not None:
         model = fit_confidence_from_records(json.loads(args.fit_confidence.read_text())["records"])
         print(f"fitted on {args.fit_confidence}: {model}")
+        return
+    if args.rescore is not None:
+        res = json.loads(args.rescore.read_text())
+        res["records"] = rescore(res["records"])
+        res["confidence"] = confidence_summary(res["records"])
+        print(f"{args.rescore} rescored with {ConfidenceModel()}")
+        _print_confidence(res["confidence"])
+        if args.reliability_svg:
+            _write_reliability(res, args.reliability_svg)
         return
     with tempfile.TemporaryDirectory() as tmp:
         data = args.data
@@ -458,31 +533,9 @@ def main(argv: list[str] | None = None) -> None:
     _print_summary("all scenes", res["all_scenes"])
     if res["test_split"]:
         _print_summary("test split (unseen categories + distractors)", res["test_split"])
-    print("\nconfidence (contenders: 1 = a pick, >= 2 ambiguous, 0 none):")
-    print(
-        f"  {'kind':18} {'n':>5} {'right pick':>11} {'wrong pick':>11} {'ambiguous':>10} {'none':>7} "
-        f"{'ECE':>6}"
-    )
-    for kind, c in res["confidence"].items():
-        ece = c.get("expected_calibration_error")
-        print(
-            f"  {kind:18} {c['n']:5d} {100 * c['pick_right']:10.1f}% {100 * c['wrong_pick']:10.1f}% "
-            f"{100 * c['ambiguous']:9.1f}% {100 * c['none']:6.1f}% {'' if ece is None else f'{ece:6.3f}'}"
-        )
+    _print_confidence(res["confidence"])
     if args.reliability_svg:
-        rows = [(k, c) for k, c in res["confidence"].items() if "reliability" in c]
-        merged = [
-            {
-                "bin": rows[0][1]["reliability"][b]["bin"],
-                "n": sum(c["reliability"][b]["n"] for _, c in rows),
-                "mean_predicted": _weighted(rows, b, "mean_predicted"),
-                "observed": _weighted(rows, b, "observed"),
-            }
-            for b in range(len(rows[0][1]["reliability"]))
-        ]
-        args.reliability_svg.parent.mkdir(parents=True, exist_ok=True)
-        args.reliability_svg.write_text(reliability_svg(merged, f"grounding confidence, {res['data']}"))
-        print(f"wrote {args.reliability_svg}")
+        _write_reliability(res, args.reliability_svg)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(res, indent=2))

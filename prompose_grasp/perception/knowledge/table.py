@@ -10,7 +10,10 @@ when no entry is near (`KnowledgeMatch.weight`).
 
 from __future__ import annotations
 
+import hashlib
 import json
+import logging
+import os
 import threading
 from dataclasses import dataclass
 from functools import lru_cache
@@ -29,8 +32,11 @@ __all__ = [
     "KnowledgeMatch",
     "ObjectEntry",
     "ObjectKnowledge",
+    "cache_dir",
     "load_table",
 ]
+
+log = logging.getLogger(__name__)
 
 TABLE_PATH = Path(__file__).resolve().parent / "objects.json"
 
@@ -226,11 +232,13 @@ class ObjectKnowledge:
     def _embeddings(self) -> np.ndarray:
         with self._lock:
             if self._E is None:
-                self._E = np.asarray(self.encoder.encode(self._texts), dtype=np.float64)
+                self._E = _cached_embeddings(self.encoder, self._texts)
             return self._E
 
     def warm_up(self) -> None:
-        """Embed the table's names and synonyms now (a few hundred short texts, ~1 s on 2 cores)."""
+        """Embed the table's names and synonyms now: read from the embedding cache when this encoder has
+        embedded this table before (`cache_dir`), else computed (~2,700 short texts, seconds on 2 cores)
+        and stored there."""
         self._embeddings()
 
     def lookup(self, noun: str) -> KnowledgeMatch | None:
@@ -262,6 +270,47 @@ class ObjectKnowledge:
         with self._lock:
             self._cache[key] = out
         return out
+
+
+def cache_dir() -> Path:
+    """Where embeddings of the table are kept between processes: `$PROMPOSE_GRASP_CACHE`, else
+    `$XDG_CACHE_HOME/prompose_grasp`, else `~/.cache/prompose_grasp`."""
+    env = os.environ.get("PROMPOSE_GRASP_CACHE")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "prompose_grasp"
+
+
+def _cached_embeddings(encoder: Any, texts: list[str]) -> np.ndarray:
+    """(N, D) float64 embeddings of `texts`, from the cache when the same encoder embedded the same texts
+    before. The key is the texts, the encoder's class, model folder and width, and its embedding of one
+    probe text (a changed model under the same folder gives another key). A missing, stale or unreadable
+    entry is computed; a cache that cannot be written is skipped; each with a log line, never an error."""
+    probe = np.asarray(encoder.encode(["object knowledge cache probe"])[0], dtype=np.float32)
+    h = hashlib.sha256()
+    h.update(json.dumps(texts).encode())
+    h.update(f"{type(encoder).__name__}|{getattr(encoder, 'model_path', '')}|{encoder.dim}".encode())
+    h.update(np.round(probe, 5).tobytes())
+    path = cache_dir() / f"knowledge-{h.hexdigest()[:20]}.npy"
+    try:
+        E = np.load(path)
+        if E.shape == (len(texts), encoder.dim) and np.all(np.isfinite(E)):
+            return E.astype(np.float64)
+        log.info("knowledge embedding cache %s does not fit the table; embedding again", path)
+    except FileNotFoundError:
+        pass
+    except (OSError, ValueError) as exc:
+        log.info("knowledge embedding cache %s unreadable (%s); embedding again", path, exc)
+    E = np.asarray(encoder.encode(texts), dtype=np.float32)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp.npy")
+        np.save(tmp, E)
+        os.replace(tmp, path)
+    except OSError as exc:
+        log.info("knowledge embedding cache not written (%s): the table is embedded at every start", exc)
+    return E.astype(np.float64)
 
 
 def _joined(noun: str, entries: tuple[ObjectEntry, ...], similarity: float, weight: float) -> KnowledgeMatch:
