@@ -279,7 +279,8 @@ _CANDIDATE_ORDERS = ("top_first", "score")
 class _Abort(Exception):
     """Ends a run with a typed reason (internal; never escapes `run`). `estimates` (camera frame of
     `T_base_cam`) go into the outcome ("ambiguous": the contenders); "wrong_object" says where the object put
-    back stands (`held_at`) and where the one that fits better does (`retry_at`), in base [m]."""
+    back stands (`held_at`) and where the one that fits better does (`retry_at`), in base [m]. `judged`: a
+    "not_found" the grounder decided on the candidates it saw (nothing fits the words), not an empty frame."""
 
     def __init__(
         self,
@@ -289,8 +290,10 @@ class _Abort(Exception):
         T_base_cam: np.ndarray | None = None,
         held_at: np.ndarray | None = None,
         retry_at: np.ndarray | None = None,
+        judged: bool = False,
     ):
         super().__init__(message)
+        self.judged = judged
         self.reason = reason
         self.message = message
         self.estimates = tuple(estimates)
@@ -541,12 +544,14 @@ class PickAndPlace:
         """Capture `observe_frames` frames and estimate the prompt: the candidates, best first (one with a
         tracker over several frames or an estimator without `estimate_all`). Nothing found is retried on
         fresh frames `camera_retries` times (a transient depth hole or occlusion) before "not_found"; an
-        "ambiguous" answer (`judge`) is not retried."""
+        "ambiguous" answer (`judge`) is not retried, and neither is a "not_found" the grounder judged on the
+        candidates it saw: asking fresh frames until sensor noise makes one of them clear would turn a
+        refusal into a guess (the chance of a spurious clear winner grows with every frame asked)."""
         for k in range(self.config.camera_retries):
             try:
                 return self._estimates_once(prompt, timings, min_score_ratio, judge)
             except _Abort as exc:
-                if exc.reason != "not_found" or k + 1 == self.config.camera_retries:
+                if exc.reason != "not_found" or exc.judged or k + 1 == self.config.camera_retries:
                     raise
                 logger.info("nothing found (%s); observing again", exc.message)
         raise _Abort("not_found", "no observation")  # not reached: the loop returns or raises
@@ -595,7 +600,7 @@ class PickAndPlace:
         if refused is not None:
             contenders = max(contenders, len(ests), 2)
         if contenders == 0:
-            raise _Abort("not_found", f"nothing in the frame fits the words of {prompt!r}")
+            raise _Abort("not_found", f"nothing in the frame fits the words of {prompt!r}", judged=True)
         if judge and contenders >= 2:
             T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
             fit = ests[:contenders]
