@@ -29,7 +29,8 @@ def test_probabilities_are_the_softmax_with_none():
         ([3.0, 3.0], 2),  # two equal: ambiguous
         ([3.0, 3.0, 3.0, -2.0], 3),  # three equal and one far off
         ([0.0, -3.0], 0),  # "none" (total 1) likelier than the best
-        ([1.2, -5.0], 0),  # the best's only rival within the ratio is "none"
+        ([1.2, -5.0], 0),  # the best's only rival within `none_ratio` is "none"
+        ([3.0, 2.5], 2),  # odds 2.7:1, within `contender_ratio` (identical objects seen from two places)
         ([], 0),
     ],
 )
@@ -42,7 +43,7 @@ def test_contenders_known_by_construction(totals, expected):
 def test_a_best_likelier_wrong_than_right_is_no_pick():
     # ten weak candidates share the mass: the best at 0.28 has no single rival within half of it, yet it is
     # likelier wrong than right
-    m = ConfidenceModel(temperature=1.0, none_total=-10.0)
+    m = ConfidenceModel(temperature=1.0, none_total=-10.0, contender_ratio=0.5)
     totals = np.array([1.0] + [0.0] * 5)
     p, p_none = match_probabilities(totals, m)
     assert p[0] < 0.5 and np.all(p[1:] < m.contender_ratio * p[0])

@@ -12,7 +12,7 @@ t_none are fitted on generated scenes whose true object is known (the grounding 
 (docs/grounding.md, "Confidence"); t_none so that "nothing fits" rarely turns away an object that is there.
 
 Contenders (`contenders`): 0 when "none" is likelier than the best candidate, or is the best's only rival
-within `contender_ratio` of it, or the best alone is under `pick_probability` (nothing fits the words, or
+within `none_ratio` of it, or the best alone is under `pick_probability` (nothing fits the words, or
 whether the one that might is the object is a guess); 1 when the best is clear (its probability at least
 `clear_probability`, or nothing else within `contender_ratio` of it); else the number of candidates within
 `contender_ratio` of the best: the prompt does not tell them apart, and choosing one would be a guess.
@@ -20,6 +20,7 @@ whether the one that might is the object is a guess); 1 when the best is clear (
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,7 +39,11 @@ class ConfidenceModel:
         none_total: t_none, the total of "none of the candidates".
         clear_probability: a best candidate this probable is chosen whatever the runner-up.
         contender_ratio: candidates whose probability is at least this fraction of the best's contend with
-            it (when the best is not clear).
+            it (when the best is not clear). 0.3, odds within about 3:1, a total T ln 3.3 = 0.7 apart: two
+            identical objects seen from two places differ by up to about 0.5 (the visible depth of a round
+            thing, a corner hidden), and the pair must still read as a pair.
+        none_ratio: "none of them" contends with a lone best candidate at this fraction of its probability
+            (0.5: odds within 2:1; "none" has a fixed total, no view noise to allow for).
         pick_probability: a best candidate without contenders is chosen only at this probability or more
             (0.5: likelier right than wrong).
     """
@@ -48,7 +53,8 @@ class ConfidenceModel:
     temperature: float = 0.59
     none_total: float = 0.88
     clear_probability: float = 0.75
-    contender_ratio: float = 0.5
+    contender_ratio: float = 0.3
+    none_ratio: float = 0.5
     pick_probability: float = 0.5
 
     def __post_init__(self) -> None:
@@ -56,7 +62,7 @@ class ConfidenceModel:
             raise InvalidInputError(f"temperature must be finite and > 0, got {self.temperature}")
         if not np.isfinite(self.none_total):
             raise InvalidInputError(f"none_total must be finite, got {self.none_total}")
-        for name in ("clear_probability", "contender_ratio", "pick_probability"):
+        for name in ("clear_probability", "contender_ratio", "none_ratio", "pick_probability"):
             if not 0.0 < getattr(self, name) <= 1.0:
                 raise InvalidInputError(f"{name} must be in (0, 1], got {getattr(self, name)}")
 
@@ -79,7 +85,7 @@ def contenders(probabilities: np.ndarray, p_none: float, model: ConfidenceModel)
     if p[0] >= model.clear_probability:
         return 1
     n = max(1, int(np.count_nonzero(p >= model.contender_ratio * p[0])))
-    if n == 1 and (p_none >= model.contender_ratio * p[0] or p[0] < model.pick_probability):
+    if n == 1 and (p_none >= model.none_ratio * p[0] or p[0] < model.pick_probability):
         # "none of them" contends with the only candidate, or the best is likelier wrong than right (many
         # weak candidates share the rest): whether the object is there at all is a guess
         return 0
@@ -124,6 +130,4 @@ def fit_confidence(
         return total
 
     res = minimize_scalar(nll, bounds=(np.log(0.05), np.log(5.0)), method="bounded")
-    return ConfidenceModel(
-        float(np.exp(res.x)), t0, base.clear_probability, base.contender_ratio, base.pick_probability
-    )
+    return dataclasses.replace(base, temperature=float(np.exp(res.x)), none_total=t0)
