@@ -280,6 +280,8 @@ def _run_estimate(args: argparse.Namespace) -> int:
     timing = dict(estimates[0].timings_ms) if estimates else {}
     result = {
         "prompt": args.prompt,
+        # 1: the first object is the one named; >= 2: that many fit the words about equally; 0: none does
+        "contenders": int(estimates[0].contenders) if estimates else 0,
         "objects": [e.to_dict() for e in estimates],
         "timing_ms": {
             k: round(float(timing.get(k, 0.0)), 3) for k in ("grounding", "prior", "pose", "total")
@@ -297,6 +299,18 @@ def _run_estimate(args: argparse.Namespace) -> int:
         )
         cv2.imwrite(args.overlay, image[..., ::-1])
         print(f"wrote {args.overlay}", file=sys.stderr)
+    if estimates and estimates[0].contenders >= 2:
+        n = estimates[0].contenders
+        print(
+            f"{n} objects fit {args.prompt!r} about equally (the first {min(n, len(estimates))} in the "
+            "JSON); name the one you mean more narrowly",
+            file=sys.stderr,
+        )
+    elif estimates and estimates[0].contenders == 0:
+        print(
+            f"nothing in the frame clearly fits {args.prompt!r}; the objects listed are guesses",
+            file=sys.stderr,
+        )
     return 0
 
 

@@ -116,6 +116,7 @@ class Estimate:
         return {
             **self.pose.to_dict(),
             "score": float(self.score),
+            "probability": None if math.isnan(self.probability) else float(self.probability),
             "mask_pixels": int(np.count_nonzero(self.mask)),
             "prior": self.prior.name,
         }

@@ -141,8 +141,10 @@ def test_cli_estimate_writes_the_json_contract_and_an_overlay(frame, tmp_path, c
     doc = json.loads(out_json.read_text())
     assert doc["prompt"] == "the blue box"
     assert set(doc["timing_ms"]) == {"grounding", "prior", "pose", "total"}
+    assert doc["contenders"] == 1  # one blue box in the scene: a clear answer
     best = doc["objects"][0]
-    assert set(best) == {"R", "t", "size", "score", "mask_pixels", "prior"}
+    assert set(best) == {"R", "t", "size", "score", "probability", "mask_pixels", "prior"}
+    assert 0.75 <= best["probability"] <= 1.0  # clear: the confidence model's `clear_probability` or more
     assert np.asarray(best["R"]).shape == (3, 3) and len(best["t"]) == 3 and best["prior"] == "box"
     assert cv2.imread(str(overlay)).shape == (K.height, K.width, 3)
     # Bad input: a missing file is one line on stderr and exit code 2.
