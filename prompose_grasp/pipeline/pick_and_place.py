@@ -1331,7 +1331,8 @@ class PickAndPlace:
         says the held object is not the one named; None when it is, or when it cannot tell (fails closed).
 
         The held object is the candidate nearest the tcp among those hanging under it (centre within half
-        the object's largest extent plus `_HELD_XY_SLACK_M` of the tcp, across). The others count when they
+        the object's largest extent plus `_HELD_XY_SLACK_M` of the tcp, across, and risen by `moved_min_m` or
+        more from where the object stood). The others count when they
         stand away from the tcp and from where the object was picked (`_SAME_PLACE_M`) and where the camera
         saw an object before the pick (`_stood_before`). Wrong: one of them fits the prompt clearly better
         (`wrong_object_margin`; only for a command naming one object with `candidate_order` "score"), or the
@@ -1343,7 +1344,14 @@ class PickAndPlace:
         tcp = np.asarray(self.robot.fk_tcp(self.arm.joint_positions()), dtype=np.float64)[:3, 3]
         poses = [e.pose.transformed(T_base_cam) for e in ests]
         reach = 0.5 * float(np.max(obs.target.pose.size)) + _HELD_XY_SLACK_M
-        hanging = [k for k, p in enumerate(poses) if _across(p.t, tcp) <= reach]
+        # held: under the tcp, and risen from where the object stood (an object still on the table under the
+        # lifted hand, a cup beside the bowl that was taken, is not in the hand)
+        rise = self.config.moved_min_m
+        hanging = [
+            k
+            for k, p in enumerate(poses)
+            if _across(p.t, tcp) <= reach and p.t[2] - obs.target.pose.t[2] >= rise
+        ]
         if not hanging:
             return None  # the held object is not among the candidates: nothing to judge
         k_held = min(hanging, key=lambda k: float(np.linalg.norm(poses[k].t - tcp)))
