@@ -387,24 +387,10 @@ def _measure(feats: CandidateFeatures, measure: str) -> np.ndarray:
     return e.max(axis=1)  # length
 
 
-def score_candidates(
-    parsed: ParsedPrompt,
-    feats: CandidateFeatures,
-    shape_prob: dict[str, float] | None,
-    reference: tuple[CandidateFeatures, dict[str, float] | None] | None = None,
-    weights: ScoringWeights | None = None,
-    noun_prior: NounPrior | None = None,
-    reference_prior: NounPrior | None = None,
-    rivals: RivalReadings | None = None,
-    knowledge: Any = None,
-    reference_knowledge: Any = None,
-) -> np.ndarray:
-    """(K,) float64 scores in (0, 1) of the candidates for `parsed` (higher is better): sigmoid(2 (total - 1))
-    of `candidate_totals` (same arguments)."""
-    total = candidate_totals(
-        parsed, feats, shape_prob, reference, weights, noun_prior, reference_prior, rivals, knowledge,
-        reference_knowledge,
-    )  # fmt: skip
+def score_candidates(*args: Any, **kwargs: Any) -> np.ndarray:
+    """(K,) float64 scores in (0, 1) of the candidates (higher is better): sigmoid(2 (total - 1)) of
+    `candidate_totals`, which takes the same arguments."""
+    total = candidate_totals(*args, **kwargs)
     return 1.0 / (1.0 + np.exp(-2.0 * (total - 1.0)))
 
 

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from prompose_grasp.errors import InvalidInputError
+from prompose_grasp.perception.grounding.describe import PALETTE as _PALETTE  # the names an entry may list
 
 __all__ = [
     "CATEGORIES",
@@ -40,21 +41,6 @@ log = logging.getLogger(__name__)
 
 TABLE_PATH = Path(__file__).resolve().parent / "objects.json"
 
-#: Colour names an entry may list (the grounder's palette, `grounding.describe.PALETTE`).
-_PALETTE = (
-    "red",
-    "orange",
-    "yellow",
-    "green",
-    "cyan",
-    "blue",
-    "purple",
-    "pink",
-    "brown",
-    "black",
-    "white",
-    "grey",
-)
 COARSE_SHAPES = ("box", "cylinder", "round", "flat", "elongated", "irregular")
 FEATURES = ("handle", "hollow", "lid", "cap", "spout", "neck")
 CATEGORIES = (
