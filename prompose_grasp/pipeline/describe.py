@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from prompose_grasp.perception.grounding.describe import PALETTE, colour_names
+from prompose_grasp.perception.grounding.language import parse_prompt
 
 __all__ = [
     "colour_share",
@@ -59,18 +60,19 @@ def _head(prompt: str) -> list[str]:
 
 
 def object_noun(prompt: str) -> str:
-    """The kind the prompt names, without article, colour, size or relation: "the red soda can left of the
-    bowl" -> "soda can"; "object" when nothing is left ("the red one")."""
-    words = [w for w in _head(prompt) if w not in PALETTE and w not in _SIZE_WORDS and w != "one"]
-    return " ".join(words) or "object"
+    """The kind the prompt names, without article, colour, size or relation (`grounding.parse_prompt`'s
+    noun): "the red soda can left of the bowl" -> "soda can"; "object" when nothing is left ("the red
+    one")."""
+    parsed = parse_prompt(prompt)
+    return "object" if parsed.generic else parsed.noun
 
 
 def prompt_colour(prompt: str) -> str | None:
-    """The one palette colour the prompt's object words name ("the green bottle" -> "green"), or None (no
-    colour, or several: "the red and white box"). A colour after a relation names another thing ("the mug
-    next to the red bowl")."""
-    colours = {w for w in _head(prompt) if w in PALETTE}
-    return colours.pop() if len(colours) == 1 else None
+    """The one palette colour the prompt's object words name ("the green bottle" -> "green", "the navy
+    cup" -> "blue"), or None (no colour, or several: "the red and white box"). A colour after a relation
+    names another thing ("the mug next to the red bowl")."""
+    colours = parse_prompt(prompt).colours
+    return colours[0] if len(colours) == 1 else None
 
 
 def colour_share(

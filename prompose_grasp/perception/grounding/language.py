@@ -55,7 +55,9 @@ _SIZE_WORDS: dict[str, tuple[str, int, bool]] = {
 GENERIC_NOUNS = frozenset({"object", "objects", "thing", "things", "item", "items", "one", "stuff", "it"})
 
 _FILLERS = frozenset({"one", "dark", "light"})
-_ARTICLES = frozenset({"the", "a", "an", "this", "that", "some", "any", "my", "your", "of"})
+_ARTICLES = frozenset(
+    {"the", "a", "an", "this", "that", "some", "any", "my", "your", "of", "all", "both", "every", "each"}
+)
 _LEADING = re.compile(
     r"^(?:please\s+)?(?:(?:can|could|would)\s+you\s+)?(?:please\s+)?"
     r"(?:pick\s+up|pick|grab|grasp|take|get|fetch|find|locate|bring(?:\s+me)?|hand(?:\s+me)?|give(?:\s+me)?|"
