@@ -103,6 +103,7 @@ from prompose_grasp.grasp.motion import MotionConfig, free_move, place_support_f
 from prompose_grasp.grasp.place import footprint
 from prompose_grasp.grasp.planner import build_scene, robot_pixel_mask, robot_self_capsules
 from prompose_grasp.grasp.scene import CollisionScene
+from prompose_grasp.perception.grounding.score import total_of_score
 from prompose_grasp.pipeline.command import Command, CommandNotUnderstood, CommandParser
 from prompose_grasp.pipeline.describe import (
     colour_share,
@@ -1567,11 +1568,9 @@ _AS_WELL_AS_TOTAL = 0.41
 
 
 def _total(est: Any) -> float:
-    """The grounder's score total of an estimate (its score is sigmoid(2 (total - 1)); -inf without one)."""
+    """The grounder's score total of an estimate (`grounding.score.total_of_score`; -inf without a score)."""
     s = float(getattr(est, "score", float("nan")))
-    if not 0.0 < s < 1.0:
-        return math.inf if s >= 1.0 else -math.inf
-    return 1.0 + 0.5 * math.log(s / (1.0 - s))
+    return -math.inf if math.isnan(s) else float(total_of_score(min(max(s, 0.0), 1.0)))
 
 
 def _score(obs: _Observation) -> float:

@@ -52,6 +52,7 @@ from prompose_grasp.perception.grounding.confidence import (
 from prompose_grasp.perception.grounding.describe import dominant_colour
 from prompose_grasp.perception.grounding.grounder import Grounder
 from prompose_grasp.perception.grounding.language import parse_prompt
+from prompose_grasp.perception.grounding.score import total_of_score
 from prompose_grasp.perception.grounding.types import GroundingConfig
 
 HIT_IOU = 0.5
@@ -131,11 +132,11 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _confidence_record(result: Any, targets: list[np.ndarray]) -> dict[str, Any]:
-    """What calibration needs of one grounding call: every candidate's score total (the inverse of the
-    score's sigmoid(2 (total - 1))), whether it is the prompt's object, the probabilities and contenders."""
+    """What calibration needs of one grounding call: every candidate's score total (`total_of_score`),
+    whether it is the prompt's object, the probabilities and contenders."""
     scores = np.clip([c.score for c in result.candidates], 1e-12, 1.0 - 1e-12)
     return {
-        "totals": (1.0 + 0.5 * np.log(scores / (1.0 - scores))).tolist(),
+        "totals": total_of_score(scores).tolist(),
         "right": [any(_iou(c.mask, t) >= HIT_IOU for t in targets) for c in result.candidates],
         "probabilities": [c.probability for c in result.candidates],
         "contenders": result.contenders,

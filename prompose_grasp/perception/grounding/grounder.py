@@ -37,6 +37,7 @@ from prompose_grasp.perception.grounding.score import (
     RivalReadings,
     ScoringWeights,
     candidate_totals,
+    score_of_total,
 )
 from prompose_grasp.perception.grounding.segment import Segment, segment_objects
 from prompose_grasp.perception.grounding.types import (
@@ -375,7 +376,7 @@ class Grounder:
         n_contenders = 0
         if segs:
             totals = self._totals(parsed, described, has_plane=plane is not None)
-            scores = 1.0 / (1.0 + np.exp(-2.0 * (totals - 1.0)))
+            scores = score_of_total(totals)
             probs, p_none = match_probabilities(totals, self.confidence)
             n_contenders = contenders(probs, p_none, self.confidence)
             order = np.argsort(-totals, kind="stable")[: cfg.max_candidates]

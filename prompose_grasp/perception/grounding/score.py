@@ -129,6 +129,8 @@ __all__ = [
     "knowledge_terms",
     "metric_size_term",
     "score_candidates",
+    "score_of_total",
+    "total_of_score",
 ]
 
 #: One sentence per measured shape family; the noun's similarity to them gives p(family | noun).
@@ -387,11 +389,22 @@ def _measure(feats: CandidateFeatures, measure: str) -> np.ndarray:
     return e.max(axis=1)  # length
 
 
+def score_of_total(total: np.ndarray | float) -> np.ndarray:
+    """The score in (0, 1) of a score total: sigmoid(2 (total - 1)) (module docstring)."""
+    return 1.0 / (1.0 + np.exp(-2.0 * (np.asarray(total, dtype=np.float64) - 1.0)))
+
+
+def total_of_score(score: np.ndarray | float) -> np.ndarray:
+    """The score total of a score, the inverse of `score_of_total`: +inf at 1, -inf at 0, NaN for NaN."""
+    s = np.asarray(score, dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        return 1.0 + 0.5 * np.log(s / (1.0 - s))
+
+
 def score_candidates(*args: Any, **kwargs: Any) -> np.ndarray:
-    """(K,) float64 scores in (0, 1) of the candidates (higher is better): sigmoid(2 (total - 1)) of
+    """(K,) float64 scores in (0, 1) of the candidates (higher is better): `score_of_total` of
     `candidate_totals`, which takes the same arguments."""
-    total = candidate_totals(*args, **kwargs)
-    return 1.0 / (1.0 + np.exp(-2.0 * (total - 1.0)))
+    return score_of_total(candidate_totals(*args, **kwargs))
 
 
 def candidate_totals(
