@@ -43,10 +43,12 @@ camera must no longer see the object where it stood. A grasp whose approach or l
 on the way (IK every 5 mm, seeded with the last) is skipped before anything moves.
 
 No wrong-object success: after the lift (pick and place alike) the prompt is estimated again; the candidate
-nearest the tcp is what is held. When another candidate, standing where the camera saw an object before the
-pick, fits the prompt clearly better (`PickConfig.wrong_object_margin` on the calibrated `probability`), or
-the prompt names a colour the held object clearly lacks while the other shows it, the object is put back (the
-lift line back down to its grasp pose, validated first, then open and retreat) and the run ends
+nearest the tcp and risen from where the object stood is what is held. When another candidate, standing where
+the camera saw an object before the pick, fits the prompt clearly better (`PickConfig.wrong_object_margin` on
+the calibrated `probability`) and about as well as the object chosen before the pick did (the held one, in
+the air behind the jaws, reads low whatever it is), or the prompt names a colour the held object clearly
+lacks while the other shows it, the object is put back (the lift line back down to its grasp pose,
+validated first, then open and retreat) and the run ends
 "wrong_object", or, with `retry_wrong_object`, the better candidate is tried once (the one put back never
 again). Without probabilities, masks or a held candidate the check cannot judge and passes: it never
 invents a wrong object.
@@ -103,6 +105,7 @@ from prompose_grasp.grasp.motion import MotionConfig, free_move, place_support_f
 from prompose_grasp.grasp.place import footprint
 from prompose_grasp.grasp.planner import build_scene, robot_pixel_mask, robot_self_capsules
 from prompose_grasp.grasp.scene import CollisionScene
+from prompose_grasp.perception.grounding.confidence import ConfidenceModel
 from prompose_grasp.perception.grounding.score import total_of_score
 from prompose_grasp.pipeline.command import Command, CommandNotUnderstood, CommandParser
 from prompose_grasp.pipeline.describe import (
@@ -1333,12 +1336,12 @@ class PickAndPlace:
 
         The held object is the candidate nearest the tcp among those hanging under it (centre within half
         the object's largest extent plus `_HELD_XY_SLACK_M` of the tcp, across, and risen by `moved_min_m` or
-        more from where the object stood). The others count when they
-        stand away from the tcp and from where the object was picked (`_SAME_PLACE_M`) and where the camera
-        saw an object before the pick (`_stood_before`). Wrong: one of them fits the prompt clearly better
-        (`wrong_object_margin`; only for a command naming one object with `candidate_order` "score"), or the
-        prompt names a colour the held object's visible pixels clearly lack (`_COLOUR_ABSENT`) while one of
-        them shows it (`_COLOUR_SHOWN`)."""
+        more from where the object stood). The others count when they stand away from the tcp and from where
+        the object was picked (`_SAME_PLACE_M`) and where the camera saw an object before the pick
+        (`_stood_before`). Wrong: one of them fits the prompt clearly better (`wrong_object_margin`) and
+        about as well as the object chosen before the pick (`_AS_WELL_AS_TOTAL`; only for a command naming
+        one object with `candidate_order` "score"), or the prompt names a colour the held object's visible
+        pixels clearly lack (`_COLOUR_ABSENT`) while one of them shows it (`_COLOUR_SHOWN`)."""
         if len(ests) < 2:
             return None
         T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
@@ -1562,9 +1565,9 @@ def _size_ratio(size: np.ndarray, ref_sorted: np.ndarray) -> float:
 
 
 #: A standing candidate "fits about as well" as the object chosen before the pick when its score total is
-#: within this of the chosen one's: T ln 2 of the grounder's calibration (`confidence.ConfidenceModel`,
-#: T 0.59), odds within a factor of two.
-_AS_WELL_AS_TOTAL = 0.41
+#: within this of the chosen one's: T ln 2 of the grounder's calibration (`confidence.ConfidenceModel`),
+#: odds within a factor of two.
+_AS_WELL_AS_TOTAL = ConfidenceModel().temperature * math.log(2.0)
 
 
 def _total(est: Any) -> float:
