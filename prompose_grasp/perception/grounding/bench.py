@@ -24,6 +24,13 @@ categories with train-category distractors, the estimator benchmark's protocol) 
 - recall: some candidate (not only the best) has IoU >= 0.5 with a target: the segmentation's share;
 - confusion of category prompts: the category of the object the best mask matches (IoU >= 0.5), "bad
   mask" when it matches none (merged or split objects), "none" without candidates.
+
+Confidence (`confidence_summary`): each frame is also asked for two prompts of objects it does not hold
+(the right answer there is "none"). Every call records the candidates' score totals and which of them is
+the prompt's object, so that `--fit-confidence R.json` fits the calibration and `--rescore R.json`
+recomputes probabilities and contenders under today's one without grounding again; the report gives right
+and wrong picks, correct and wrong ambiguity and "none" per prompt kind, and a reliability table
+(`--reliability-svg` draws it).
 """
 
 from __future__ import annotations

@@ -8,8 +8,9 @@ temperature, beside a fixed total for "none",
 
 so a candidate's probability is high only when its total stands clear of every other and of "none". T and
 t_none are fitted on generated scenes whose true object is known (the grounding benchmark's records,
-`fit_confidence`): T by maximum likelihood, so that the probabilities match how often the best is right
-(docs/grounding.md, "Confidence"); t_none so that "nothing fits" rarely turns away an object that is there.
+`fit_confidence`): T by maximum likelihood, so that the probabilities match how often the best is right;
+t_none so that "nothing fits" rarely turns away an object that is there (docs/grounding.md, "Object
+knowledge and confidence").
 
 Contenders (`contenders`): 0 when "none" is likelier than the best candidate, or is the best's only rival
 within `none_ratio` of it, or the best alone is under `pick_probability` (nothing fits the words, or
@@ -49,7 +50,8 @@ class ConfidenceModel:
     """
 
     # fitted on generated scenes (sim.dataset seed 41, 40 scenes x 2 frames, 644 prompts): the grounding
-    # bench `--data DIR --json R.json`, then `--fit-confidence R.json` (docs/grounding.md, "Confidence")
+    # bench `--data DIR --json R.json`, then `--fit-confidence R.json` (docs/grounding.md, "Object knowledge
+    # and confidence")
     temperature: float = 0.59
     none_total: float = 0.88
     clear_probability: float = 0.75
