@@ -145,6 +145,45 @@ def _lowest_heights(
     return low
 
 
+def _lift_off_support(
+    cands: Candidates,
+    which: np.ndarray,
+    deficit_m: np.ndarray,
+    support: Plane,
+    gripper: ParallelJawGeometry,
+    config: GraspConfig,
+) -> np.ndarray:
+    """Move the parallel-jaw candidates `which` (N,) back along their approach until the gripper clears the
+    support by `support_clearance_m` (`deficit_m` (N,): how far short of that each one is), where the pads
+    still hold both contacts; returns (N,) which were moved (`cands` is changed in place).
+
+    An object lower than a pad is held with the fingertips just above the support, the contacts on the
+    pads' lower part: a knife lying flat, 15 mm high, under a 30 mm pad. A candidate keeps its contacts
+    when each lies at least `fingertip_contact_margin_m` inside the pad's lower edge after the move; the
+    move must come from an approach within 60 degrees of straight down (a side approach moved back does not
+    rise). The quality loses the depth term's share of the pad that no longer presses on the object.
+    """
+    out = np.zeros(len(cands), dtype=bool)
+    idx = np.flatnonzero(which)
+    if idx.size == 0 or config.fingertip_contact_margin_m < 0:
+        return out
+    T = cands.T_base_tcp[idx]
+    a = T[:, :3, 2]
+    rise = -(a @ np.asarray(support.normal))  # height gained per metre moved back along the approach
+    steep = rise >= 0.5
+    back = np.where(steep, deficit_m[idx] / np.maximum(rise, 1e-9), np.inf)
+    # contacts' depth along the approach below the moved tcp, against the pad's half length
+    along = np.einsum("nkj,nj->nk", cands.contacts[idx] - T[:, None, :3, 3], a)
+    half_pad = 0.5 * gripper.pad_size_m[2]
+    held = np.all(along + back[:, None] <= half_pad - config.fingertip_contact_margin_m, axis=1)
+    ok = steep & held
+    moved = idx[ok]
+    cands.T_base_tcp[moved, :3, 3] -= back[ok, None] * a[ok]
+    cands.quality[moved] -= 0.2 * np.minimum(1.0, back[ok] / gripper.pad_size_m[2])
+    out[moved] = True
+    return out
+
+
 def robot_self_capsules(
     robot: RobotModel, gripper: ParallelJawGeometry | SuctionCupGeometry, q: np.ndarray
 ) -> list[tuple[str, np.ndarray, np.ndarray, float]]:
@@ -284,7 +323,10 @@ def plan_grasps(
     halves, centres_tcp = gripper_hulls(grip, cands.opening_m, cfg.approach_offset_m)
     if support is not None and n:
         low = _lowest_heights(cands.T_base_tcp, halves, centres_tcp, support)
-        status[(status == "") & (low < cfg.support_clearance_m)] = "support"
+        short = (status == "") & (low < cfg.support_clearance_m)
+        if isinstance(grip, ParallelJawGeometry):
+            short &= ~_lift_off_support(cands, short, cfg.support_clearance_m - low, support, grip, cfg)
+        status[short] = "support"
     timings["filters"] = (time.perf_counter() - t) * 1e3
 
     # IK, batched.

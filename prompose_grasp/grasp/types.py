@@ -135,6 +135,9 @@ class GraspConfig:
         min_clearance_m: the least such space for a grasp to be kept (narrower: rejected as "stroke") [m].
         palm_clearance_m: the palm stays this far from the object's extent along the approach [m].
         support_clearance_m: every gripper part stays this far above the support plane [m].
+        fingertip_contact_margin_m: a parallel-jaw candidate that dips below the support moves back along its
+            approach until it clears it, when each contact stays at least this far inside the pad's lower
+            edge (an object lower than a pad, held by the fingertips; negative: never moved) [m].
         friction_coefficient: pad-object friction used by the antipodal friction-cone test [-].
         approach_tilts_deg: tilts of box approaches away from the box axes, in the plane normal to the
             closing direction [deg].
@@ -163,6 +166,7 @@ class GraspConfig:
     min_clearance_m: float = 0.004
     palm_clearance_m: float = 0.005
     support_clearance_m: float = 0.003
+    fingertip_contact_margin_m: float = 0.003
     friction_coefficient: float = 0.5
     approach_tilts_deg: tuple[float, ...] = (0.0, -30.0, 30.0)
     n_slide: int = 3
@@ -205,6 +209,9 @@ class GraspConfig:
         for name, value in non_negative.items():
             if not (math.isfinite(value) and value >= 0):
                 raise InvalidInputError(f"GraspConfig.{name} must be finite and >= 0, got {value!r}")
+        margin = self.fingertip_contact_margin_m
+        if not math.isfinite(margin):
+            raise InvalidInputError(f"GraspConfig.fingertip_contact_margin_m must be finite, got {margin!r}")
         counts = ["n_slide", "mesh_samples", "antipodal_pairs", "suction_grid", "max_candidates"]
         counts += ["max_grasps", "arm_branches"]
         for name in counts:

@@ -177,3 +177,26 @@ def test_a_long_lift_near_the_base_is_followed_on_its_branch_not_refused():
         np.testing.assert_allclose(ROBOT.fk_tcp(q), g.T_base_retreat, atol=1e-9)  # reached the retreat
         total.append(float(np.linalg.norm(q - g.q)))
     assert max(total) > 1.0  # the lift turns the joints by more than the old one-jump limit
+
+
+def test_an_object_lower_than_a_pad_is_held_at_the_fingertips_just_above_the_table():
+    # A knife lying flat: 15 mm high, lower than the 30 mm pad. Pads centred on the contacts would put the
+    # fingertips 15 mm below them, into the table; the grasp rises until they clear it, contacts on the pads.
+    target = _box("knife", [-0.5, 0.1, 0.0075], [0.03, 0.015, 0.22])
+    cfg = GraspConfig(max_grasps=8)
+    plan = plan_grasps(target, ROBOT, JAW, [], TABLE, None, HOME_Q, cfg)
+    half_pad = JAW.pad_size_m[2] / 2.0
+    for g in plan:
+        for part in JAW.parts(g.opening_m):  # the sim's primitives stay above the table
+            T = g.T_base_tcp @ part.T_tcp_part
+            lo, hi = part.aabb_tcp()
+            corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * (hi - lo) / 2
+            assert (corners @ T[:3, :3].T + T[:3, 3])[:, 2].min() >= cfg.support_clearance_m - 1e-9
+        # both contacts on the pads, at least the margin inside their lower edge
+        depth = (np.asarray(g.contacts) - g.T_base_tcp[:3, 3]) @ g.approach
+        assert np.all(np.abs(depth) <= half_pad - cfg.fingertip_contact_margin_m + 1e-9)
+    assert plan.best.T_base_tcp[2, 3] > target.pose.t[2]  # the tcp (pad centre) above the contacts
+    # with the move switched off, every jaw candidate dips into the table
+    with pytest.raises(NoFeasibleGrasp) as err:
+        plan_grasps(target, ROBOT, JAW, [], TABLE, None, HOME_Q, GraspConfig(fingertip_contact_margin_m=-1.0))
+    assert set(err.value.rejected) <= {"support", "stroke"} and err.value.rejected["support"] > 0

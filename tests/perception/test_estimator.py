@@ -319,8 +319,9 @@ def test_a_track_started_on_a_cut_view_grows_to_the_whole_object(redetect):
         # noise and the grazing-angle band, as in the orbit tests)
         assert max(size_errors[1:]) < 0.06 and max(centre_errors[1:]) < 0.01
     else:
-        # measured: 42 % short after the re-fit, still 28 % short on frame 4, the centre 2.6-2.9 cm off
-        assert size_errors[1] > 0.3 and min(centre_errors[1:]) > 0.02
+        # measured: 42 % short after the re-fit and the centre 2.9 cm off; the seen surface beyond the box
+        # then grows it a little each frame (`grow_to_seen`), 1.4 cm off on frame 4
+        assert size_errors[1] > 0.3 and centre_errors[1] > 0.02
 
 
 def test_moved_object_is_followed_and_a_vanished_one_is_lost(orbit):
