@@ -212,7 +212,12 @@ def real_mesh_plan(
             {
                 "name": item["name"],
                 "prompt": f"{colour} {item['prompt']}",
-                "mesh": {"path": str(REAL_MESHES_DIR / item["dir"] / "model.obj"), "up_axis": "z"},
+                # the scans' own concavities (a cup's inside, a hammer's neck) in the physics, not one hull
+                "mesh": {
+                    "path": str(REAL_MESHES_DIR / item["dir"] / "model.obj"),
+                    "up_axis": "z",
+                    "collision": "decompose",
+                },
                 "rgba": rgba,
                 "place": {"support": "table", "region": region},
             }

@@ -50,6 +50,7 @@ from numpy.typing import ArrayLike
 from prompose_grasp.errors import InvalidInputError, UnknownNameError
 
 __all__ = [
+    "COLLISION_MODELS",
     "FAMILIES",
     "NOCS_CATEGORIES",
     "SYMMETRIES",
@@ -61,6 +62,9 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+#: How a loaded mesh collides (`load_mesh_object`): its whole convex hull, or its convex decomposition.
+COLLISION_MODELS = ("hull", "decompose")
 
 #: The six NOCS categories: their canonical frames follow NOCS (+y up; mug handle along +x).
 NOCS_CATEGORIES = ("bottle", "bowl", "camera", "can", "laptop", "mug")
@@ -627,12 +631,17 @@ def load_mesh_object(
     up_axis: str = "y",
     category: str | None = None,
     symmetry: str = "none",
+    collision: str = "hull",
 ) -> ObjectAsset:
     """Load an OBJ/STL/PLY mesh file as an object asset.
 
     The file's axes become the canonical axes after `up_axis` is turned onto +y; the origin moves to the
     centre of the axis-aligned box, and `scale` (3,) multiplies the canonical x, y, z [unitless]. The file's
     units must be metres (scale converts others: 0.001 for millimetres).
+
+    `collision`: "hull" collides the object as the convex hull of the whole mesh (solid: a scanned cup cannot
+    be gripped by its rim); "decompose" as the convex parts of its approximate convex decomposition
+    (`sim.decompose.convex_parts`: hollow where the mesh is, cached on disk; needs CoACD).
 
     Raises:
         InvalidInputError: missing/unreadable file, empty mesh, bad scale, unknown symmetry.
@@ -650,6 +659,8 @@ def load_mesh_object(
         raise UnknownNameError("up axis", up_axis, sorted(_UP_AXES))
     if symmetry not in SYMMETRIES:
         raise UnknownNameError("symmetry", symmetry, SYMMETRIES)
+    if collision not in COLLISION_MODELS:
+        raise UnknownNameError("collision model", collision, COLLISION_MODELS)
     try:
         loaded = trimesh.load(str(p), force="mesh", process=True)
     except Exception as exc:  # trimesh raises many types for unreadable files
@@ -663,4 +674,10 @@ def load_mesh_object(
     default_category = p.parent.name if p.stem in ("model", "mesh") else p.stem
     cat = category or default_category
     params = {"scale_x": float(s[0]), "scale_y": float(s[1]), "scale_z": float(s[2])}
-    return _finish(cat, [mesh], [mesh.convex_hull], symmetry, params, str(p))
+    if collision == "decompose":
+        from sim.decompose import convex_parts
+
+        hulls = convex_parts(mesh)
+    else:
+        hulls = [mesh.convex_hull]
+    return _finish(cat, [mesh], hulls, symmetry, params, str(p))

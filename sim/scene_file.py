@@ -19,7 +19,7 @@ The format is DESIGN.md's "Sim scene file"; docs/sim.md documents every key. In 
     objects:
       - name: mug
         prompt: red mug
-        mesh: {family: mug, params: {radius_m: 0.04}}             # or a path, or {path, up_axis, category}
+        mesh: {family: mug, params: {radius_m: 0.04}}  # or a path, or {path, up_axis, category, collision}
         scale: [1, 1, 1]
         rgba: [0.8, 0.1, 0.1, 1]                                  # or texture: checker | file.png | random
         place: {support: table, region: {centre_m: [0, 0], half_extents_m: [0.3, 0.2]}}  # or pose: {...}
@@ -189,7 +189,7 @@ def parse_pose(d: Any, where: str, allow_look_at: bool = False) -> np.ndarray:
 def _parse_mesh(d: Any, where: str) -> Mapping[str, Any]:
     if isinstance(d, str):
         return {"path": d}
-    _check_keys(d, ("family", "params", "path", "up_axis", "category", "symmetry"), where)
+    _check_keys(d, ("family", "params", "path", "up_axis", "category", "symmetry", "collision"), where)
     if ("family" in d) == ("path" in d):
         raise InvalidInputError(f"{where} needs exactly one of 'family' or 'path'")
     if "family" in d:
@@ -381,6 +381,7 @@ def _asset(o: Mapping[str, Any], base: Path, rng: np.random.Generator) -> Object
         up_axis=mesh.get("up_axis", "y"),
         category=mesh.get("category"),
         symmetry=mesh.get("symmetry", "none"),
+        collision=mesh.get("collision", "hull"),
     )
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from scipy.spatial import ConvexHull
 
 from prompose_grasp.errors import InvalidInputError, UnknownNameError
 from sim.objects import FAMILIES, NOCS_CATEGORIES, SYMMETRIES, load_mesh_object, make_object, sample_params
@@ -126,3 +127,46 @@ def test_real_meshes_load_with_their_listed_extents():
         # objects.json rounds extents to 0.1 mm
         np.testing.assert_allclose(asset.size, e["extents_m"], atol=1.5e-4)
         assert asset.category == e["dir"]
+
+
+def _open_cup(radius_m: float = 0.04, height_m: float = 0.1, wall_m: float = 0.004) -> trimesh.Trimesh:
+    """A watertight open cup about z: a 4 mm wall and a 5 mm base around a cavity open at the top."""
+    r_in = radius_m - wall_m
+    profile = [[0.0, 0.0], [radius_m, 0.0], [radius_m, height_m], [r_in, height_m], [r_in, 0.005]]
+    profile.append([0.0, 0.005])
+    return trimesh.creation.revolve(np.array(profile), sections=32)  # about z
+
+
+def _in_convex(part: trimesh.Trimesh, point: np.ndarray) -> bool:
+    """Whether `point` (3,) lies inside the convex `part` (every face plane has it on its inner side)."""
+    eq = ConvexHull(part.vertices).equations
+    return bool(np.all(eq[:, :3] @ point + eq[:, 3] <= 1e-9))
+
+
+def test_a_decomposed_cup_is_hollow_where_its_hull_is_solid(tmp_path, monkeypatch):
+    pytest.importorskip("coacd", reason="collision 'decompose' needs the sim extra (coacd)")
+    monkeypatch.setenv("PROMPOSE_GRASP_CACHE", str(tmp_path))
+    path = tmp_path / "cup.stl"
+    _open_cup().export(path)
+    hull = load_mesh_object(path, up_axis="z")
+    parts = load_mesh_object(path, up_axis="z", collision="decompose")
+    assert len(hull.collision) == 1 and len(parts.collision) > 1
+    np.testing.assert_allclose(parts.size, hull.size)  # the visual mesh and its box are the same
+    # a point in the cavity, 3 cm below the rim on the axis: inside the hull, inside no part (a finger fits)
+    inside = np.array([0.0, 0.02, 0.0])  # canonical frame: +y up, origin at the box centre
+    assert _in_convex(hull.collision[0], inside)
+    assert not any(_in_convex(p, inside) for p in parts.collision)
+    # the wall is covered: a point in it, 2 mm inside the outer face, lies in a part
+    assert any(_in_convex(p, np.array([0.038, 0.0, 0.0])) for p in parts.collision)
+    # cached: the second load reads the parts back (same vertices) from the cache folder
+    cached = list((tmp_path / "collision").glob("coacd-*.npz"))
+    assert len(cached) == 1
+    again = load_mesh_object(path, up_axis="z", collision="decompose")
+    assert [len(p.vertices) for p in again.collision] == [len(p.vertices) for p in parts.collision]
+
+
+def test_an_unknown_collision_model_is_named(tmp_path):
+    path = tmp_path / "cup.stl"
+    _open_cup().export(path)
+    with pytest.raises(UnknownNameError, match="decompose"):
+        load_mesh_object(path, collision="convex")
