@@ -1283,10 +1283,10 @@ class PickAndPlace:
         """After the lift: the object must no longer be seen where it stood (`slip_check`), and what is held
         must be the object named (`_wrong_object`; else it is put back and the attempt is "wrong_object").
 
-        A candidate moved when its centre moved or its top rose by `moved_min_m`: the lifted object seen in
-        the hand is partly hidden by the gripper and its amodal box can reach down to the table (a 31 cm
-        bottle lifted 34 cm was estimated 0.36 m tall, centre 31 mm from where it stood, top 56 mm higher:
-        seed 247 dropped it three times as "still where it stood")."""
+        A candidate moved when its centre moved or its top rose by `moved_min_m`, or its lowest seen points
+        are that high above the support: the lifted object seen in the hand is partly hidden by the gripper
+        and its amodal box can reach down to the table (a 31 cm bottle lifted 34 cm was estimated 0.36 m
+        tall, centre 31 mm from where it stood, top 56 mm higher)."""
         if not self.config.reobserve:
             return
         self._emit("verify", "re-observing", 0.8)
@@ -1305,7 +1305,9 @@ class PickAndPlace:
         def displacement(est: Any) -> float:
             after = ObjectModel("target", est.pose.transformed(T_base_cam))
             rise = _top_height(after, support) - top_before
-            return max(float(np.linalg.norm(after.pose.t - before.pose.t)), rise)
+            # it stood on the support: its lowest seen points that high above it rose at least that much
+            lifted = _lowest_seen(est, frame, support)
+            return max(float(np.linalg.norm(after.pose.t - before.pose.t)), rise, lifted)
 
         # Any candidate still standing where the target stood means it was not lifted (those within
         # `candidate_ratio` of the best score, as fitted before every candidate was).
@@ -1349,12 +1351,15 @@ class PickAndPlace:
         poses = [e.pose.transformed(T_base_cam) for e in ests]
         reach = 0.5 * float(np.max(obs.target.pose.size)) + _HELD_XY_SLACK_M
         # held: under the tcp, and risen from where the object stood (an object still on the table under the
-        # lifted hand, a cup beside the bowl that was taken, is not in the hand)
+        # lifted hand, a cup beside the bowl that was taken, is not in the hand): its box's centre rose, or
+        # even its lowest seen points are that high above the support (seen in the air and partly behind
+        # the jaws, a held object's amodal box can reach down to the table)
         rise = self.config.moved_min_m
         hanging = [
             k
-            for k, p in enumerate(poses)
-            if _across(p.t, tcp) <= reach and p.t[2] - obs.target.pose.t[2] >= rise
+            for k, (e, p) in enumerate(zip(ests, poses))
+            if _across(p.t, tcp) <= reach
+            and (p.t[2] - obs.target.pose.t[2] >= rise or _lowest_seen(e, frame, obs.support) >= rise)
         ]
         if not hanging:
             return None  # the held object is not among the candidates: nothing to judge
@@ -1590,6 +1595,20 @@ def _height(obj: ObjectModel, support: Plane | None) -> float:
     """Extent of the object's box along the support normal (base +z without one) [m]."""
     up = np.array([0.0, 0.0, 1.0]) if support is None else np.asarray(support.normal)
     return float(np.abs(obj.pose.R.T @ up) @ obj.pose.size)
+
+
+def _lowest_seen(est: Any, frame: RGBDFrame, support: Plane | None) -> float:
+    """Height above the support [m] of the lowest seen points of `est` (the 5th percentile of its mask's
+    depth points, in the frame's base frame); -inf without a mask, a support or points. Something standing
+    on the support shows points near it; something held in the air does not."""
+    mask = getattr(est, "mask", None)
+    if support is None or mask is None or frame.T_base_cam is None:
+        return -math.inf
+    pts = back_project(frame.depth_m, frame.intrinsics, mask)
+    if len(pts) < 10:
+        return -math.inf
+    heights = support.height(transform_points(np.asarray(frame.T_base_cam, dtype=np.float64), pts))
+    return float(np.percentile(heights, 5.0))
 
 
 def _top_height(obj: ObjectModel, support: Plane | None) -> float:

@@ -164,9 +164,10 @@ class World:
     grounder gives the probabilities `p_before` (A, B); with an object in the hand (a clearer view)
     `p_after`."""
 
-    def __init__(self, arm, gripper, p_before=(0.5, 0.4), p_after=(0.1, 0.8)):
+    def __init__(self, arm, gripper, p_before=(0.5, 0.4), p_after=(0.1, 0.8), held_box_on_table=False):
         self.arm, self.gripper = arm, gripper
         self.p_before, self.p_after = p_before, p_after
+        self.held_box_on_table = held_box_on_table  # the held box's estimate still stands on the table
         self.estimates: list = []
 
     def held(self) -> str | None:
@@ -221,6 +222,8 @@ class WorldEstimator(OracleEstimator):
         p = self.world.p_before if self.world.held() is None else self.world.p_after
         out = []
         for k, (name, t) in enumerate(self.world.centres().items()):
+            if self.world.held_box_on_table and name == self.world.held():
+                t = np.array([t[0], t[1], HOME[name][2]])  # an amodal box reaching down to the table
             est = _box(t, SIZE, COLOUR[name], 1, p[k], SCORES[name])(frame, prompt)
             est.mask, est.name = masks[name], name
             out.append(est)
@@ -228,7 +231,13 @@ class WorldEstimator(OracleEstimator):
 
 
 def _world_cell(
-    command_prompt: str, p_before=(0.5, 0.4), p_after=(0.1, 0.8), command=None, places=None, **kwargs
+    command_prompt: str,
+    p_before=(0.5, 0.4),
+    p_after=(0.1, 0.8),
+    command=None,
+    places=None,
+    held_box_on_table=False,
+    **kwargs,
 ):
     """Pick `command_prompt` in a `World` (re-observing after the lift; no self filter: the fake camera
     does not see the robot, only the boxes, whose top faces the gripper's capsules would cover)."""
@@ -237,7 +246,11 @@ def _world_cell(
         f"pick up {command_prompt}", "pick", command_prompt, False, None, "", 1.0, 0.0
     )
     outcome, arm, gripper = _cell(
-        None, config, command, world=lambda arm, grip: World(arm, grip, p_before, p_after), places=places
+        None,
+        config,
+        command,
+        world=lambda arm, grip: World(arm, grip, p_before, p_after, held_box_on_table),
+        places=places,
     )
     return outcome, arm, gripper, gripper.log
 
@@ -273,6 +286,15 @@ def test_a_wrong_object_in_the_hand_is_put_back_and_named():
     assert ("open", k + 1) in log  # opened at the grasp pose, before the retreat was sent
     assert log[-1][0] == "open"  # nothing is held at the end
     assert np.allclose(arm.sent[-1].q, HOME_Q)  # and the arm went back to where it started
+
+
+def test_a_held_object_whose_box_reaches_down_to_the_table_is_still_judged():
+    # Seen in the air and partly behind the jaws, a held object's amodal box can reach down to the table:
+    # here A's estimate after the lift has its centre where A stood. Its seen points (its top face, in the
+    # air under the tcp) are all far above the table, so it is the held object, and it is the wrong one.
+    outcome, arm, _, log = _world_cell("the box", held_box_on_table=True, retry_wrong_object=False)
+    assert outcome.reason == "wrong_object", outcome.message
+    assert _put_back_index(arm.sent, outcome.attempts[0].grasp, log) > 0
 
 
 def test_a_wrong_object_is_put_back_and_the_better_one_tried_once():
