@@ -105,6 +105,13 @@ COLOUR_ONLY_BOTTLES = (
 )  # fmt: skip
 
 
+def render_objects(
+    scene_name: str, objects, width: int = 640, height: int = 480, seed: int = 0
+) -> SceneFrame:
+    """The table of `render_scene` with `objects` ((name, family, params, rgb, (x, y) [m], yaw)) on it."""
+    return _render_table_scene(scene_name, objects, width, height, seed)
+
+
 def render_lookalikes(objects, width: int = 640, height: int = 480, seed: int = 0) -> SceneFrame:
     """The table of `render_scene` with look-alike `objects` (`SIZE_ONLY_CANS`, `COLOUR_ONLY_BOTTLES`)."""
     return _render_table_scene("grounding_lookalikes_test", objects, width, height, seed)

@@ -20,7 +20,7 @@ from prompose_grasp.perception.grounding import (
 )
 
 sys.path.insert(0, str(Path(__file__).parent))
-from grounding_scene import render_scene, render_wall_scene
+from grounding_scene import render_objects, render_scene, render_wall_scene
 
 pytestmark = pytest.mark.sim
 
@@ -344,3 +344,32 @@ def test_only_the_named_objects_colour_tells_three_bottles_apart(bottles, ground
 def test_three_bottles_of_one_size_are_ambiguous_for_the_bare_kind(bottles, grounder):
     result = grounder.ground(bottles.rgb, bottles.depth_m, bottles.intrinsics, "the bottle")
     assert result.ambiguous
+
+
+def _flat_scene(height_m: float, colour=(0.15, 0.3, 0.8)):
+    """A 25 x 3 cm bar `height_m` high lying on the table (0.93 m from the camera) and a red mug."""
+    objects = (
+        ("ruler", "box", {"width_m": 0.25, "height_m": height_m, "depth_m": 0.03}, colour, (0.05, 0.05), 0.3),
+        ("mug", "mug", {"radius_m": 0.042, "height_m": 0.095}, (0.8, 0.1, 0.1), (-0.2, 0.0), 0.4),
+    )
+    return render_objects("grounding_flat_test", objects)
+
+
+def test_an_object_lower_than_the_height_cut_everywhere_is_found(grounder):
+    # A 7 mm ruler 0.93 m away: the cut is 10 mm there (2.5 sigma), so no cell stands above it, and one by one
+    # its cells are within 2 sigma of the table. Its ~280 cells of a colour off the table's, together 7 mm up
+    # (hundreds of standard errors), are one object.
+    scene = _flat_scene(0.007)
+    result = grounder.ground(scene.rgb, scene.depth_m, scene.intrinsics, "the blue ruler")
+    found, overlap = best_object(scene, result)
+    assert found == "ruler" and overlap >= MIN_NAMED_IOU
+    assert result.contenders == 1
+
+
+def test_a_sheet_lying_on_the_table_is_not_an_object(grounder):
+    # A blue sheet 1 mm thick: of a colour off the table's, but its mean height (1 mm) is under the 5 mm a
+    # thin part must stand; no candidate covers it.
+    scene = _flat_scene(0.001)
+    sheet = scene.gt_mask == scene.ids["ruler"]
+    result = grounder.ground(scene.rgb, scene.depth_m, scene.intrinsics, "the blue ruler")
+    assert all((c.mask & sheet).sum() < 0.2 * sheet.sum() for c in result.candidates)

@@ -114,6 +114,11 @@ _PIECE_CHAIN_M = 0.025
 #: not of the support's colour, and joins a cell above the cut through such cells (`_thin_parts`).
 _THIN_SIGMAS = 1.5
 _THIN_MIN_M = 0.005
+#: An object lower than the cut everywhere (`_flat_objects`): at least this many grid cells, their mean
+#: height this many standard errors above the plane.
+_FLAT_MIN_CELLS = 20
+_FLAT_SIGMAS = 6.0
+_FLAT_MAX_FG_SHARE = 0.3
 
 #: Without a support plane, segments bigger than this share of the valid pixels are background (walls, floor).
 _MAX_BACKGROUND_SHARE = 0.25
@@ -186,6 +191,53 @@ def _thin_parts(
     seeded = np.zeros(int(comp.max()) + 1, dtype=bool)
     seeded[comp[fg]] = True
     return fg | (low & seeded[comp])
+
+
+def _flat_objects(
+    fg: np.ndarray, Pg: np.ndarray, lab_g: np.ndarray, plane: SupportPlane, config: GroundingConfig
+) -> np.ndarray:
+    """(h, w) int grid labels 0..F-1 (-1 elsewhere) of objects lower than the height cut almost everywhere (a
+    knife or a toothbrush lying flat: 12-15 mm, where the cut is 2.5 sigma(z) = 16-20 mm at 1.2-1.35 m).
+
+    Such an object shows a few cells above the cut at most, and one by one its cells are within the noise
+    (sigma(z) 6-8 mm there). Together they are not: a piece of cells of a colour off the support's
+    (`colour_edge`; 8-connected across gaps of a cell, a knife is 1-2 cells wide) within the height band
+    (from minus the cut to `max_height_m`), holding at least `_FLAT_MIN_CELLS` cells, at most
+    `_FLAT_MAX_FG_SHARE` of them above the cut (else it is an object the cut finds), whose mean height is
+    at least `_FLAT_SIGMAS` standard errors (sigma(z) / sqrt(n)) and `_THIN_MIN_M` above the plane. A patch
+    of the table's own texture, or a sheet lying on it, has a mean height near zero. Each piece is one
+    object: the grid's clustering splits its cells, whose depths differ by the noise, into pieces too small
+    to keep.
+    """
+    z = Pg[..., 2]
+    valid = np.isfinite(z)
+    with np.errstate(invalid="ignore"):
+        h = Pg @ plane.normal_cam + plane.offset_m
+        cut = _height_cut(z, config)
+        support = valid & (np.abs(h) < cut)
+        band = valid & (h > -cut) & (h < config.max_height_m)
+    out = np.full(fg.shape, -1, dtype=np.int64)
+    if np.count_nonzero(support) < 10:
+        return out
+    table = lab_g[support]
+    ref = np.median(table[:: max(1, len(table) // 4000)], axis=0)
+    coloured = band & (_colour_distance(lab_g, ref) >= config.colour_edge)
+    # a cell or two of a thin object blend with the table at its edges: pieces a cell apart are one
+    joined = cv2.morphologyEx(coloured.view(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    n, comp = cv2.connectedComponents(joined, connectivity=8)
+    if n <= 1:
+        return out
+    c, cells = comp[coloured], np.bincount(comp[coloured], minlength=n).astype(np.float64)
+    per_cell = np.maximum(cells, 1.0)
+    mean_h = np.bincount(c, weights=h[coloured], minlength=n) / per_cell
+    sigma = np.bincount(c, weights=config.sigma_m(z[coloured]), minlength=n) / per_cell
+    fg_share = np.bincount(c, weights=fg[coloured].astype(np.float64), minlength=n) / per_cell
+    ok = (cells >= _FLAT_MIN_CELLS) & (fg_share <= _FLAT_MAX_FG_SHARE)
+    ok &= mean_h >= np.maximum(_THIN_MIN_M, _FLAT_SIGMAS * sigma / np.sqrt(per_cell))
+    ok[0] = False
+    keep = ok[comp] & coloured
+    _, out[keep] = np.unique(comp[keep], return_inverse=True)
+    return out
 
 
 def concave_creases(z: np.ndarray, config: GroundingConfig, k: int = 0) -> np.ndarray:
@@ -724,8 +776,11 @@ def segment_objects(
     small_rgb = cv2.resize(rgb[: h * s, : w * s], (w, h), interpolation=cv2.INTER_AREA) if s > 1 else rgb
     lab_g = lab_image(small_rgb[:h, :w])
     fg = _above(Pg, plane, config)
+    flat_labels = np.full(fg.shape, -1, dtype=np.int64)
     if plane is not None:
-        fg = _thin_parts(fg, Pg, lab_g, plane, config)
+        flat_labels = _flat_objects(fg, Pg, lab_g, plane, config)
+        fg = _thin_parts(fg, Pg, lab_g, plane, config) & (flat_labels < 0)
+    flat = flat_labels >= 0
     labels, geo = _grid_labels(Pg, lab_g, fg, f_px, s, config)
     min_cells = max(1, int(np.ceil(config.min_segment_px / (s * s))))
     heights = None
@@ -736,6 +791,12 @@ def segment_objects(
     # the points that describe the body (footprint and shape family: a box's own stray cells at its far top
     # edge turned it "cylindrical" in a closed-loop episode, tabletop seed 739)
     labels, fragment = _merge_small(labels, geo, min_cells, Pg, heights)
+    if np.any(flat):  # each flat object is one segment (`_flat_objects`), kept when it is big enough
+        big = np.bincount(flat_labels[flat]) >= min_cells
+        keep = flat & big[np.maximum(flat_labels, 0)]
+        labels = np.where(keep, flat_labels + int(labels.max()) + 1, labels)
+        _, relabel = np.unique(labels, return_inverse=True)
+        labels = relabel.reshape(labels.shape) - (1 if np.any(labels < 0) else 0)
     if plane is not None:
         wall = _wall_segments(labels, Pg, plane, config, span_m=_RESPLIT_SPAN_M)
         resplit = np.zeros(labels.shape, dtype=bool)
@@ -768,6 +829,7 @@ def segment_objects(
     rows = np.minimum(np.arange(H) // s, h - 1)
     cols = np.minimum(np.arange(W) // s, w - 1)
     lab_full = labels[np.ix_(rows, cols)]
+    flat_full = flat[np.ix_(rows, cols)] & np.isfinite(point_map[..., 2])
     background_full = background[np.ix_(rows, cols)]
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * s + 1, 2 * s + 1))
     close_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (9, 9))
@@ -796,7 +858,8 @@ def segment_objects(
         above = _above(roi_points, plane, config)
         invalid = ~np.isfinite(roi_points[..., 2])
         others = ((roi_lab >= 0) & ~own) | taken[y0:y1, x0:x1] | background_full[y0:y1, x0:x1]
-        seed = own & above
+        # a flat object's cells are its pixels, though most of them are under the cut one by one
+        seed = own & (above | flat_full[y0:y1, x0:x1])
         grown = cv2.dilate(seed.view(np.uint8), kernel).view(bool) & above & ~others
         mask = seed | grown
         # pixels without depth around and inside the segment: keep those of the segment's colour
