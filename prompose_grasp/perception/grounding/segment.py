@@ -202,8 +202,10 @@ def _flat_objects(
     Such an object shows a few cells above the cut at most, and one by one its cells are within the noise
     (sigma(z) 6-8 mm there). Together they are not: a piece of cells of a colour off the support's
     (`colour_edge`; 8-connected across gaps of a cell, a knife is 1-2 cells wide) within the height band
-    (from minus the cut to `max_height_m`), holding at least `_FLAT_MIN_CELLS` cells, at most
-    `_FLAT_MAX_FG_SHARE` of them above the cut (else it is an object the cut finds), whose mean height is
+    (from minus the cut to `max_height_m`), outside any solid piece of cells above the cut (at least
+    `_FLAT_MIN_CELLS` of them: a standing object's; the few cells a flat object's noise lifts over the cut
+    are scattered), holding at least `_FLAT_MIN_CELLS` cells, at most `_FLAT_MAX_FG_SHARE` of them beside
+    such a solid piece (else it is the low part of that object: a rim, a base), whose mean height is
     at least `_FLAT_SIGMAS` standard errors (sigma(z) / sqrt(n)) and `_THIN_MIN_M` above the plane. A patch
     of the table's own texture, or a sheet lying on it, has a mean height near zero. Each piece is one
     object: the grid's clustering splits its cells, whose depths differ by the noise, into pieces too small
@@ -221,7 +223,11 @@ def _flat_objects(
         return out
     table = lab_g[support]
     ref = np.median(table[:: max(1, len(table) // 4000)], axis=0)
-    coloured = band & (_colour_distance(lab_g, ref) >= config.colour_edge)
+    # cells above the cut in a solid piece are a standing object's; the few a flat object's noise lifts over
+    # the cut are scattered
+    _, fg_comp = cv2.connectedComponents(fg.view(np.uint8), connectivity=8)
+    solid = fg & (np.bincount(fg_comp[fg], minlength=int(fg_comp.max()) + 1)[fg_comp] >= _FLAT_MIN_CELLS)
+    coloured = band & ~solid & (_colour_distance(lab_g, ref) >= config.colour_edge)
     # a cell or two of a thin object blend with the table at its edges: pieces a cell apart are one
     joined = cv2.morphologyEx(coloured.view(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
     n, comp = cv2.connectedComponents(joined, connectivity=8)
@@ -231,7 +237,9 @@ def _flat_objects(
     per_cell = np.maximum(cells, 1.0)
     mean_h = np.bincount(c, weights=h[coloured], minlength=n) / per_cell
     sigma = np.bincount(c, weights=config.sigma_m(z[coloured]), minlength=n) / per_cell
-    fg_share = np.bincount(c, weights=fg[coloured].astype(np.float64), minlength=n) / per_cell
+    # the cells above the cut that the piece touches: many, and it is the low part of an object they are
+    near_fg = cv2.dilate(solid.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+    fg_share = np.bincount(c, weights=near_fg[coloured].astype(np.float64), minlength=n) / per_cell
     ok = (cells >= _FLAT_MIN_CELLS) & (fg_share <= _FLAT_MAX_FG_SHARE)
     ok &= mean_h >= np.maximum(_THIN_MIN_M, _FLAT_SIGMAS * sigma / np.sqrt(per_cell))
     ok[0] = False
@@ -779,7 +787,7 @@ def segment_objects(
     flat_labels = np.full(fg.shape, -1, dtype=np.int64)
     if plane is not None:
         flat_labels = _flat_objects(fg, Pg, lab_g, plane, config)
-        fg = _thin_parts(fg, Pg, lab_g, plane, config) & (flat_labels < 0)
+        fg = _thin_parts(fg, Pg, lab_g, plane, config) & (flat_labels < 0)  # a cell belongs to one of them
     flat = flat_labels >= 0
     labels, geo = _grid_labels(Pg, lab_g, fg, f_px, s, config)
     min_cells = max(1, int(np.ceil(config.min_segment_px / (s * s))))
