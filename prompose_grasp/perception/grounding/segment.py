@@ -237,7 +237,7 @@ def _flat_objects(
     per_cell = np.maximum(cells, 1.0)
     mean_h = np.bincount(c, weights=h[coloured], minlength=n) / per_cell
     sigma = np.bincount(c, weights=config.sigma_m(z[coloured]), minlength=n) / per_cell
-    # the cells above the cut that the piece touches: many, and it is the low part of an object they are
+    # a piece lying mostly beside a solid piece above the cut is that object's low part (a rim, a base)
     near_fg = cv2.dilate(solid.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
     fg_share = np.bincount(c, weights=near_fg[coloured].astype(np.float64), minlength=n) / per_cell
     ok = (cells >= _FLAT_MIN_CELLS) & (fg_share <= _FLAT_MAX_FG_SHARE)
@@ -784,13 +784,16 @@ def segment_objects(
     small_rgb = cv2.resize(rgb[: h * s, : w * s], (w, h), interpolation=cv2.INTER_AREA) if s > 1 else rgb
     lab_g = lab_image(small_rgb[:h, :w])
     fg = _above(Pg, plane, config)
+    min_cells = max(1, int(np.ceil(config.min_segment_px / (s * s))))
     flat_labels = np.full(fg.shape, -1, dtype=np.int64)
     if plane is not None:
         flat_labels = _flat_objects(fg, Pg, lab_g, plane, config)
+        if np.any(flat_labels >= 0):  # each is kept when it is big enough for a segment
+            big = np.bincount(flat_labels[flat_labels >= 0]) >= min_cells
+            flat_labels = np.where(big[np.maximum(flat_labels, 0)], flat_labels, -1)
         fg = _thin_parts(fg, Pg, lab_g, plane, config) & (flat_labels < 0)  # a cell belongs to one of them
     flat = flat_labels >= 0
     labels, geo = _grid_labels(Pg, lab_g, fg, f_px, s, config)
-    min_cells = max(1, int(np.ceil(config.min_segment_px / (s * s))))
     heights = None
     if plane is not None:
         with np.errstate(invalid="ignore"):
@@ -799,10 +802,8 @@ def segment_objects(
     # the points that describe the body (footprint and shape family: a box's own stray cells at its far top
     # edge turned it "cylindrical" in a closed-loop episode, tabletop seed 739)
     labels, fragment = _merge_small(labels, geo, min_cells, Pg, heights)
-    if np.any(flat):  # each flat object is one segment (`_flat_objects`), kept when it is big enough
-        big = np.bincount(flat_labels[flat]) >= min_cells
-        keep = flat & big[np.maximum(flat_labels, 0)]
-        labels = np.where(keep, flat_labels + int(labels.max()) + 1, labels)
+    if np.any(flat):  # each flat object is one segment (`_flat_objects`)
+        labels = np.where(flat, flat_labels + int(labels.max()) + 1, labels)
         _, relabel = np.unique(labels, return_inverse=True)
         labels = relabel.reshape(labels.shape) - (1 if np.any(labels < 0) else 0)
     if plane is not None:
