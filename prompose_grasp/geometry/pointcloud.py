@@ -94,12 +94,12 @@ def masked_median_depth(depth: ArrayLike, mask: ArrayLike, radius_px: int) -> np
     Only the mask's own readings enter a window, so a silhouette pixel is not averaged with the background;
     the median keeps a real step inside the object (a handle's edge) where a mean would smear it.
     """
+    if isinstance(radius_px, bool) or not isinstance(radius_px, int) or radius_px < 0:
+        raise InvalidInputError(f"radius_px must be an int >= 0, got {radius_px!r}")
     D = np.asarray(depth, dtype=np.float64)
     if D.ndim != 2:
         raise InvalidInputError(f"depth must be (H, W), got shape {D.shape}")
     keep = valid_depth_mask(D) & _pixel_mask(mask, D.shape)
-    if isinstance(radius_px, bool) or not isinstance(radius_px, int) or radius_px < 0:
-        raise InvalidInputError(f"radius_px must be an int >= 0, got {radius_px!r}")
     out = np.zeros_like(D)
     if not keep.any():
         return out

@@ -1301,21 +1301,22 @@ class PickAndPlace:
         t0 = time.perf_counter()
         T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
         top_before = _top_height(before, support)
+        lowest = [_lowest_seen(e, frame, support) for e in ests]  # each estimate's, once
 
-        def displacement(est: Any) -> float:
-            after = ObjectModel("target", est.pose.transformed(T_base_cam))
+        def displacement(k: int) -> float:
+            after = ObjectModel("target", ests[k].pose.transformed(T_base_cam))
             rise = _top_height(after, support) - top_before
             # it stood on the support: its lowest seen points that high above it rose at least that much
-            lifted = _lowest_seen(est, frame, support)
-            return max(float(np.linalg.norm(after.pose.t - before.pose.t)), rise, lifted)
+            return max(float(np.linalg.norm(after.pose.t - before.pose.t)), rise, lowest[k])
 
         # Any candidate still standing where the target stood means it was not lifted (those within
         # `candidate_ratio` of the best score, as fitted before every candidate was).
         best = max(float(getattr(e, "score", 1.0)) for e in ests)
-        near = [e for e in ests if float(getattr(e, "score", 1.0)) >= self.config.candidate_ratio * best]
-        est = min(near, key=displacement)
-        moved = displacement(est)
-        wrong = self._wrong_object(cmd, obs, frame, ests)
+        floor = self.config.candidate_ratio * best
+        near = [k for k, e in enumerate(ests) if float(getattr(e, "score", 1.0)) >= floor]
+        moves = [displacement(k) for k in near]
+        est, moved = ests[near[int(np.argmin(moves))]], min(moves)
+        wrong = self._wrong_object(cmd, obs, frame, ests, lowest)
         timings["verify"] += time.perf_counter() - t0
         state["estimates"].append(est)
         state["T_base_cams"].append(T_base_cam)
@@ -1331,14 +1332,20 @@ class PickAndPlace:
         return cmd.plural or self.config.candidate_order == "top_first"
 
     def _wrong_object(
-        self, cmd: Command, obs: _Observation, frame: RGBDFrame, ests: Sequence[Any]
+        self,
+        cmd: Command,
+        obs: _Observation,
+        frame: RGBDFrame,
+        ests: Sequence[Any],
+        lowest_seen: Sequence[float],
     ) -> tuple[Any, Any, str] | None:
         """(held, the candidate that should have been picked, why) when the re-observation after the lift
         says the held object is not the one named; None when it is, or when it cannot tell (fails closed).
 
         The held object is the candidate nearest the tcp among those hanging under it (centre within half
         the object's largest extent plus `_HELD_XY_SLACK_M` of the tcp, across, and risen by `moved_min_m` or
-        more from where the object stood). The others count when they stand away from the tcp and from where
+        more from where the object stood: its box's centre, or its lowest seen points, `lowest_seen` per
+        estimate, from `_lowest_seen`). The others count when they stand away from the tcp and from where
         the object was picked (`_SAME_PLACE_M`) and where the camera saw an object before the pick
         (`_stood_before`). Wrong: one of them fits the prompt clearly better (`wrong_object_margin`) and
         about as well as the object chosen before the pick (`_AS_WELL_AS_TOTAL`; only for a command naming
@@ -1357,9 +1364,9 @@ class PickAndPlace:
         rise = self.config.moved_min_m
         hanging = [
             k
-            for k, (e, p) in enumerate(zip(ests, poses))
+            for k, p in enumerate(poses)
             if _across(p.t, tcp) <= reach
-            and (p.t[2] - obs.target.pose.t[2] >= rise or _lowest_seen(e, frame, obs.support) >= rise)
+            and (p.t[2] - obs.target.pose.t[2] >= rise or lowest_seen[k] >= rise)
         ]
         if not hanging:
             return None  # the held object is not among the candidates: nothing to judge

@@ -44,6 +44,7 @@ from prompose_grasp.perception.grounding.segment import (
     _chain_pieces,
     _join_hinged,
     _shade_distance,
+    _support_colour,
     _thin_parts,
     concave_creases,
 )
@@ -221,7 +222,7 @@ def test_a_thin_base_under_the_height_cut_joins_what_stands_above_it_and_the_tab
     fg = height > 0.05
     cfg = GroundingConfig()
     assert 0.009 < cfg.height_sigmas * cfg.sigma_m(1.0)  # the base is under the full cut here
-    out = _thin_parts(fg, Pg, lab, plane, cfg)
+    out = _thin_parts(fg, Pg, lab, plane, cfg, _support_colour(Pg, lab, plane, cfg))
     expected = fg.copy()
     expected[10:20, 20:30] = True
     np.testing.assert_array_equal(out, expected)

@@ -1301,18 +1301,18 @@ def grow_to_seen(
     # the points' own spacing sets the link radius: a far or small object is sampled sparsely
     spacing = float(np.median(tree.query(pts, k=2)[0][:, 1]))
     link = max(config.grow_density_radius_m, config.grow_density_spacings * spacing)
-    dense = tree.query_ball_point(pts, link, return_length=True) > config.grow_density_min  # counts itself
-    pts = pts[dense]
-    if len(pts) < k:
+    # one neighbour query serves both tests: a point's neighbours are its pairs (and itself)
+    pairs = tree.query_pairs(link, output_type="ndarray")
+    dense = np.bincount(pairs.ravel(), minlength=len(pts)) + 1 > config.grow_density_min
+    if np.count_nonzero(dense) < k:
         return pose
-    half = 0.5 * pose.size
-    local = (pts - pose.t) @ pose.R
-    inside = np.all(np.abs(local) <= half, axis=1)
-    pairs = cKDTree(pts).query_pairs(link, output_type="ndarray")
+    pairs = pairs[dense[pairs[:, 0]] & dense[pairs[:, 1]]]  # the surface links through dense points only
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(pts), len(pts)))
     _, label = connected_components(graph, directed=False)
-    own = np.unique(label[inside])
-    local = local[np.isin(label, own)]
+    half = 0.5 * pose.size
+    local = (pts - pose.t) @ pose.R
+    inside = dense & np.all(np.abs(local) <= half, axis=1)
+    local = local[dense & np.isin(label, np.unique(label[inside]))]
     lo, hi = -half.copy(), half.copy()
     margin = config.grow_margin_m
 

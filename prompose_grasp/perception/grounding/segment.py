@@ -167,26 +167,42 @@ def _above(points: np.ndarray, plane: SupportPlane | None, config: GroundingConf
         return valid & (h > _height_cut(z, config)) & (h < config.max_height_m)
 
 
+def _support_colour(
+    Pg: np.ndarray, lab_g: np.ndarray, plane: SupportPlane, config: GroundingConfig
+) -> np.ndarray | None:
+    """(3,) Lab median colour of the grid cells within the height cut of the plane (the support's own
+    colour), or None when fewer than 10 cells lie there."""
+    z = Pg[..., 2]
+    with np.errstate(invalid="ignore"):
+        support = np.isfinite(z) & (np.abs(Pg @ plane.normal_cam + plane.offset_m) < _height_cut(z, config))
+    if np.count_nonzero(support) < 10:
+        return None
+    table = lab_g[support]
+    return np.median(table[:: max(1, len(table) // 4000)], axis=0)  # 4000 cells pin a median
+
+
 def _thin_parts(
-    fg: np.ndarray, Pg: np.ndarray, lab_g: np.ndarray, plane: SupportPlane, config: GroundingConfig
+    fg: np.ndarray,
+    Pg: np.ndarray,
+    lab_g: np.ndarray,
+    plane: SupportPlane,
+    config: GroundingConfig,
+    table_lab: np.ndarray | None,
 ) -> np.ndarray:
     """`fg` (the grid cells above the height cut) plus the cells of thin parts under it: cells standing
-    `_THIN_SIGMAS` sigma(z) (and `_THIN_MIN_M`) up, whose colour differs from the support's (the median of
-    the cells within the cut of the plane) by `colour_edge`, connected to a cell of `fg` through such cells.
+    `_THIN_SIGMAS` sigma(z) (and `_THIN_MIN_M`) up, whose colour differs from the support's (`table_lab`,
+    `_support_colour`; None: no thin parts) by `colour_edge`, connected to a cell of `fg` through such cells.
     Table noise passes the lower cut in ~7 % of the cells, as specks of the table's colour; a laptop's base
     at 1 m passes it whole, where the full cut leaves scattered cells too small to keep."""
     z = Pg[..., 2]
     valid = np.isfinite(z)
     with np.errstate(invalid="ignore"):
         h = Pg @ plane.normal_cam + plane.offset_m
-        support = valid & (np.abs(h) < _height_cut(z, config))
         low = valid & ~fg & (h > np.maximum(_THIN_MIN_M, _THIN_SIGMAS * config.sigma_m(z)))
         low &= h < config.max_height_m
-    if not np.any(low) or np.count_nonzero(support) < 10:
+    if not np.any(low) or table_lab is None:
         return fg
-    table = lab_g[support]
-    ref = np.median(table[:: max(1, len(table) // 4000)], axis=0)  # 4000 cells pin a median
-    low[low] = _colour_distance(lab_g[low], ref) >= config.colour_edge  # only the candidates' colours
+    low[low] = _colour_distance(lab_g[low], table_lab) >= config.colour_edge  # only the candidates' colours
     _, comp = cv2.connectedComponents((fg | low).view(np.uint8), connectivity=4)
     seeded = np.zeros(int(comp.max()) + 1, dtype=bool)
     seeded[comp[fg]] = True
@@ -194,40 +210,42 @@ def _thin_parts(
 
 
 def _flat_objects(
-    fg: np.ndarray, Pg: np.ndarray, lab_g: np.ndarray, plane: SupportPlane, config: GroundingConfig
+    fg: np.ndarray,
+    Pg: np.ndarray,
+    lab_g: np.ndarray,
+    plane: SupportPlane,
+    config: GroundingConfig,
+    table_lab: np.ndarray | None,
 ) -> np.ndarray:
     """(h, w) int grid labels 0..F-1 (-1 elsewhere) of objects lower than the height cut almost everywhere (a
     knife or a toothbrush lying flat: 12-15 mm, where the cut is 2.5 sigma(z) = 16-20 mm at 1.2-1.35 m).
 
     Such an object shows a few cells above the cut at most, and one by one its cells are within the noise
     (sigma(z) 6-8 mm there). Together they are not: a piece of cells of a colour off the support's
-    (`colour_edge`; 8-connected across gaps of a cell, a knife is 1-2 cells wide) within the height band
-    (from minus the cut to `max_height_m`), outside any solid piece of cells above the cut (at least
-    `_FLAT_MIN_CELLS` of them: a standing object's; the few cells a flat object's noise lifts over the cut
-    are scattered), holding at least `_FLAT_MIN_CELLS` cells, at most `_FLAT_MAX_FG_SHARE` of them beside
-    such a solid piece (else it is the low part of that object: a rim, a base), whose mean height is
-    at least `_FLAT_SIGMAS` standard errors (sigma(z) / sqrt(n)) and `_THIN_MIN_M` above the plane. A patch
-    of the table's own texture, or a sheet lying on it, has a mean height near zero. Each piece is one
-    object: the grid's clustering splits its cells, whose depths differ by the noise, into pieces too small
-    to keep.
+    (`table_lab` by `colour_edge`; None: none found; 8-connected across gaps of a cell, a knife is 1-2 cells
+    wide) within the height band (from minus the cut to `max_height_m`), outside any solid piece of cells
+    above the cut (at least `_FLAT_MIN_CELLS` of them: a standing object's; the few cells a flat object's
+    noise lifts over the cut are scattered), holding at least `_FLAT_MIN_CELLS` cells, at most
+    `_FLAT_MAX_FG_SHARE` of them beside such a solid piece (else it is the low part of that object: a rim, a
+    base), whose mean height is at least `_FLAT_SIGMAS` standard errors (sigma(z) / sqrt(n)) and
+    `_THIN_MIN_M` above the plane. A patch of the table's own texture, or a sheet lying on it, has a mean
+    height near zero. Each piece is one object: the grid's clustering splits its cells, whose depths differ
+    by the noise, into pieces too small to keep.
     """
     z = Pg[..., 2]
     valid = np.isfinite(z)
     with np.errstate(invalid="ignore"):
         h = Pg @ plane.normal_cam + plane.offset_m
         cut = _height_cut(z, config)
-        support = valid & (np.abs(h) < cut)
         band = valid & (h > -cut) & (h < config.max_height_m)
     out = np.full(fg.shape, -1, dtype=np.int64)
-    if np.count_nonzero(support) < 10:
+    if table_lab is None:
         return out
-    table = lab_g[support]
-    ref = np.median(table[:: max(1, len(table) // 4000)], axis=0)
     # cells above the cut in a solid piece are a standing object's; the few a flat object's noise lifts over
     # the cut are scattered
     _, fg_comp = cv2.connectedComponents(fg.view(np.uint8), connectivity=8)
     solid = fg & (np.bincount(fg_comp[fg], minlength=int(fg_comp.max()) + 1)[fg_comp] >= _FLAT_MIN_CELLS)
-    coloured = band & ~solid & (_colour_distance(lab_g, ref) >= config.colour_edge)
+    coloured = band & ~solid & (_colour_distance(lab_g, table_lab) >= config.colour_edge)
     # a cell or two of a thin object blend with the table at its edges: pieces a cell apart are one
     joined = cv2.morphologyEx(coloured.view(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
     n, comp = cv2.connectedComponents(joined, connectivity=8)
@@ -787,11 +805,12 @@ def segment_objects(
     min_cells = max(1, int(np.ceil(config.min_segment_px / (s * s))))
     flat_labels = np.full(fg.shape, -1, dtype=np.int64)
     if plane is not None:
-        flat_labels = _flat_objects(fg, Pg, lab_g, plane, config)
+        table_lab = _support_colour(Pg, lab_g, plane, config)
+        flat_labels = _flat_objects(fg, Pg, lab_g, plane, config, table_lab)
         if np.any(flat_labels >= 0):  # each is kept when it is big enough for a segment
             big = np.bincount(flat_labels[flat_labels >= 0]) >= min_cells
             flat_labels = np.where(big[np.maximum(flat_labels, 0)], flat_labels, -1)
-        fg = _thin_parts(fg, Pg, lab_g, plane, config) & (flat_labels < 0)  # a cell belongs to one of them
+        fg = _thin_parts(fg, Pg, lab_g, plane, config, table_lab) & (flat_labels < 0)  # one of them
     flat = flat_labels >= 0
     labels, geo = _grid_labels(Pg, lab_g, fg, f_px, s, config)
     heights = None
