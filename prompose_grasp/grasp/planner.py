@@ -2,7 +2,8 @@
 
 Stages, each on the survivors of the one before (a candidate counts once, for the first check it fails):
 
-1. synthesis (`synthesis.py`): box, antipodal and suction candidates, capped at `max_candidates` (best
+1. synthesis (`synthesis.py`): box, antipodal and suction candidates, and for a target whose box is wider
+   than the stroke, section grasps on its seen surface (`surface.py`); capped at `max_candidates` (best
    quality first); generators already mark "stroke" (too wide for the jaws), "payload" (too heavy for the
    cup) and "suction_not_flat" (the cup would not seal on the mesh);
 2. "support": the gripper, swept from the pre-grasp to the grasp, dips below the support plane plus
@@ -40,6 +41,7 @@ from prompose_grasp.geometry.se3 import as_transform, invert_T, transform_points
 from prompose_grasp.grasp.batch_ik import ik_nearest_batch
 from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry, get_gripper
 from prompose_grasp.grasp.scene import CollisionScene, segment_distance
+from prompose_grasp.grasp.surface import needs_sections, section_grasps
 from prompose_grasp.grasp.synthesis import (
     Candidates,
     antipodal_grasps,
@@ -88,13 +90,14 @@ def generate_candidates(
 ) -> Candidates:
     """All candidates of the gripper's kind, capped at `config.max_candidates` (unrejected, best first)."""
     if isinstance(gripper, ParallelJawGeometry):
-        cands = Candidates.concat(
-            [
-                box_grasps(target, gripper, config, support),
-                antipodal_grasps(target, gripper, config, support),
-                rim_grasps(target, gripper, config, support),
-            ]
-        )
+        parts = [
+            box_grasps(target, gripper, config, support),
+            antipodal_grasps(target, gripper, config, support),
+            rim_grasps(target, gripper, config, support),
+        ]
+        if needs_sections(target, gripper, config):  # the box is wider than the stroke: its narrow parts
+            parts.append(section_grasps(target, gripper, config, support))
+        cands = Candidates.concat(parts)
     else:
         cands = suction_grasps(target, gripper, config, support)
     if len(cands) > config.max_candidates:

@@ -86,6 +86,8 @@ class ObjectModel:
         mass_kg: mass when known (suction payload check), else None.
         kind: "object" (a thing on the support) or "fixture" (bin walls, conveyor frame, ...): rejection
             reasons are `collision_<kind>`.
+        surface_points: (N, 3) the object's seen surface in `base` [m] (`Estimate.surface_cam`), or None:
+            with a support plane, the jaws may close across a narrow part of it (`surface.section_grasps`).
     """
 
     name: str
@@ -95,6 +97,7 @@ class ObjectModel:
     symmetry: str = "none"
     mass_kg: float | None = None
     kind: str = "object"
+    surface_points: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.pose, Pose9D):
@@ -111,6 +114,14 @@ class ObjectModel:
             raise InvalidInputError(f"ObjectModel.mass_kg must be finite and > 0 kg, got {self.mass_kg!r}")
         if self.kind not in ("object", "fixture"):
             raise InvalidInputError(f"ObjectModel.kind must be 'object' or 'fixture', got {self.kind!r}")
+        if self.surface_points is not None:
+            pts = np.asarray(self.surface_points)
+            if pts.ndim != 2 or pts.shape[1] != 3 or not np.issubdtype(pts.dtype, np.floating):
+                got = f"{pts.dtype} {pts.shape}"
+                raise InvalidInputError(f"ObjectModel.surface_points must be (N, 3) floats [m], got {got}")
+            if not np.all(np.isfinite(pts)):
+                raise InvalidInputError("ObjectModel.surface_points must be finite")
+            object.__setattr__(self, "surface_points", _readonly(pts.astype(np.float64)))
 
     @property
     def centre_of_mass(self) -> np.ndarray:

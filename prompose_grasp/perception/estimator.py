@@ -88,6 +88,9 @@ class Estimate:
             `AmbiguousObjectError`), 0 nothing fits; -1 not judged.
         attributes: what the grounder measured of the object (colour, size class, shape family, extents),
             or None (a mask handed in).
+        surface_cam: (M, 3) the object's seen surface in the camera frame [m] (`fit.seen_surface`: its
+            mask's points above the support, dense and connected to the box; the grasp layer grasps narrow
+            parts of it), or None where not computed.
     """
 
     pose: Pose9D
@@ -103,6 +106,7 @@ class Estimate:
     probability: float = math.nan
     contenders: int = -1
     attributes: CandidateAttributes | None = None
+    surface_cam: np.ndarray | None = None
 
     @cached_property
     def mesh_cam(self) -> trimesh.Trimesh:
@@ -419,6 +423,7 @@ class ProMPose:
             probability=float(candidate.probability),
             contenders=int(grounding.contenders),
             attributes=candidate.attributes,
+            surface_cam=fit.surface_points,
         )
 
     def _network_pose(

@@ -314,6 +314,7 @@ class Tracker:
             timings_ms={"grounding": grounding_ms, "prior": 0.0, "pose": pose_ms},
             frame_index=self._frame_index,
             support_plane=plane,
+            surface_cam=fit.surface_points,
         )
 
     def _protrusion_missed(self, frame: RGBDFrame, pred: Pose9D, plane: SupportPlane | None) -> bool:

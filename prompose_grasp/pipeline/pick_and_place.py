@@ -39,7 +39,9 @@ fits the words) is "not_found"; -1 (not judged) changes nothing.
 
 Verification: the jaws must have stopped on something (the gripper's own detection) no narrower than
 `min_jaw_width_m`, or half the planned contact width for a thinner part (a cup's 2 mm wall); after a pick the
-camera must no longer see the object where it stood. A grasp whose approach or lift line would flip a wrist
+camera must no longer see the object where it stood, nor see it hang from the jaws with a part still on the
+support (it rose less than half the lift and some of its seen points lie on the support: a pan held by the
+far side of its rim, its handle on the table). A grasp whose approach or lift line would flip a wrist
 on the way (IK every 5 mm, seeded with the last) is skipped before anything moves.
 
 No wrong-object success: after the lift (pick and place alike) the prompt is estimated again; the candidate
@@ -624,7 +626,13 @@ class PickAndPlace:
         if getattr(est, "mesh_cam", None) is not None:
             mesh = est.mesh_cam.copy()
             mesh.apply_transform(T_base_cam)
-        target = ObjectModel(name, pose_base, mesh=mesh, family=est.prior.name, symmetry=est.prior.symmetry)
+        surface = getattr(est, "surface_cam", None)
+        if surface is not None:
+            surface = transform_points(T_base_cam, surface)
+        target = ObjectModel(
+            name, pose_base, mesh=mesh, family=est.prior.name, symmetry=est.prior.symmetry,
+            surface_points=surface,
+        )  # fmt: skip
         support = None
         if est.support_plane is not None:
             support = Plane.from_camera(est.support_plane.normal_cam, est.support_plane.offset_m, T_base_cam)
@@ -1088,8 +1096,8 @@ class PickAndPlace:
         estimated box (a rim grasp at the very top edge) moved that much deeper along its approach, when the
         deeper grasp has IK on the same branch and its approach from the pre-grasp is free (jaws open, the
         target included): pads at the rim's top close above it when the estimate is a centimetre high."""
-        if self.gripper_kind != "parallel_jaw" or grasp.q is None:
-            return grasp
+        if self.gripper_kind != "parallel_jaw" or grasp.q is None or grasp.method == "section":
+            return grasp  # (a section grasp's depth is planned from the seen surface, not from the box)
         pad_half = 0.5 * float(getattr(self.gripper_geometry, "pad_size_m", (0, 0, 0.03))[2])
         a = grasp.T_base_tcp[:3, 2]
         depth = float(np.max((target.pose.corners() - grasp.T_base_tcp[:3, 3]) @ -a))
@@ -1301,7 +1309,8 @@ class PickAndPlace:
         t0 = time.perf_counter()
         T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
         top_before = _top_height(before, support)
-        lowest = [_lowest_seen(e, frame, support) for e in ests]  # each estimate's, once
+        heights = [_seen_heights(e, frame, support) for e in ests]  # each estimate's, once
+        lowest = [-math.inf if h is None else float(np.percentile(h, 5.0)) for h in heights]
 
         def displacement(k: int) -> float:
             after = ObjectModel("target", ests[k].pose.transformed(T_base_cam))
@@ -1323,8 +1332,54 @@ class PickAndPlace:
         if slip_check and moved < self.config.moved_min_m:
             self.gripper.open()
             raise _Abort("slipped", f"the object is still where it stood (moved {1e3 * moved:.0f} mm)")
+        resting = self._resting_part(obs, grasp, ests, heights, T_base_cam) if slip_check else None
+        if resting is not None:
+            self.gripper.open()
+            raise _Abort("slipped", resting)
         if wrong is not None:
             self._put_back(cmd, obs, grasp, frame, *wrong)
+
+    def _resting_part(
+        self,
+        obs: _Observation,
+        grasp: Any,
+        ests: Sequence[Any],
+        heights: Sequence[np.ndarray | None],
+        T_base_cam: np.ndarray,
+    ) -> str | None:
+        """Why the lifted object is not off the support, or None: the candidate that moved most among those
+        under the tcp (centre within half the object's largest extent plus `_HELD_XY_SLACK_M`, across) rose
+        less than half the lift, and some of its seen points (`_RESTING_SHARE` of them, at least
+        `_RESTING_MIN_POINTS`: a tip is a small part of a mask) lie within `_RESTING_M` of the support. It
+        hangs from the jaws with a part still resting on the support: a pan held by the far side of its rim,
+        its handle on the table, tilts and drags instead of rising. (A bowl held by its rim hangs tilted too
+        and its centre rises about half the lift, but all of it is in the air.)"""
+        support = obs.support
+        if support is None or not ests:
+            return None
+        up = np.asarray(support.normal, dtype=np.float64)
+        lift = float((np.asarray(grasp.T_base_retreat)[:3, 3] - np.asarray(grasp.T_base_tcp)[:3, 3]) @ up)
+        tcp = np.asarray(self.robot.fk_tcp(self.arm.joint_positions()), dtype=np.float64)[:3, 3]
+        reach = 0.5 * float(np.max(obs.target.pose.size)) + _HELD_XY_SLACK_M
+        before = obs.target.pose.t
+        under = [
+            (float(np.linalg.norm(p.t - before)), k, float((p.t - before) @ up))
+            for k, p in enumerate(e.pose.transformed(T_base_cam) for e in ests)
+            if _across(p.t, tcp) <= reach
+        ]
+        if not under or lift <= 0.0:
+            return None
+        _, k, rise = max(under)
+        h = heights[k]
+        if h is None:
+            return None
+        on_support = int(np.count_nonzero(h < _RESTING_M))
+        if rise < 0.5 * lift and on_support >= max(_RESTING_MIN_POINTS, _RESTING_SHARE * len(h)):
+            return (
+                f"the object hangs from the jaws with a part still on the support (its centre rose "
+                f"{1e3 * rise:.0f} mm of the {1e3 * lift:.0f} mm lift)"
+            )
+        return None
 
     def _any_will_do(self, cmd: Command) -> bool:
         """Any object that fits the prompt will do: a plural command, or a stack of like things
@@ -1345,12 +1400,13 @@ class PickAndPlace:
         The held object is the candidate nearest the tcp among those hanging under it (centre within half
         the object's largest extent plus `_HELD_XY_SLACK_M` of the tcp, across, and risen by `moved_min_m` or
         more from where the object stood: its box's centre, or its lowest seen points, `lowest_seen` per
-        estimate, from `_lowest_seen`). The others count when they stand away from the tcp and from where
-        the object was picked (`_SAME_PLACE_M`) and where the camera saw an object before the pick
-        (`_stood_before`). Wrong: one of them fits the prompt clearly better (`wrong_object_margin`) and
-        about as well as the object chosen before the pick (`_AS_WELL_AS_TOTAL`; only for a command naming
-        one object with `candidate_order` "score"), or the prompt names a colour the held object's visible
-        pixels clearly lack (`_COLOUR_ABSENT`) while one of them shows it (`_COLOUR_SHOWN`)."""
+        estimate: the 5th percentile of `_seen_heights`). The others count when they stand away from the
+        tcp and from where the object was picked (`_SAME_PLACE_M`) and where the camera saw an object
+        before the pick (`_stood_before`). Wrong: one of them fits the prompt clearly better
+        (`wrong_object_margin`) and about as well as the object chosen before the pick (`_AS_WELL_AS_TOTAL`;
+        only for a command naming one object with `candidate_order` "score"), or the prompt names a colour
+        the held object's visible pixels clearly lack (`_COLOUR_ABSENT`) while one of them shows it
+        (`_COLOUR_SHOWN`)."""
         if len(ests) < 2:
             return None
         T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
@@ -1543,6 +1599,12 @@ _SURFACE_BAND_M = 0.02
 #: After the lift, the held object's centre lies across from the tcp by at most half its largest extent (a
 #: grasp on a side face) plus this: the estimate of an object half hidden in the hand is off by 1-2 cm [m].
 _HELD_XY_SLACK_M = 0.03
+#: Seen points this close to the support rest on it (depth noise and the plane fit put an object's points
+#: on the support within about a centimetre of the plane); a held object's part rests on the support when
+#: this share of its mask's points, and at least this many, lie there.
+_RESTING_M = 0.015
+_RESTING_SHARE = 0.01
+_RESTING_MIN_POINTS = 3
 #: A candidate stood there before the pick when the pick's observed points, above the support by more than
 #: this, lie inside its box grown by this: the fitted box's faces are ~1 cm off the surface it was fitted to,
 #: and the table's own points stay under it [m] ...
@@ -1604,18 +1666,17 @@ def _height(obj: ObjectModel, support: Plane | None) -> float:
     return float(np.abs(obj.pose.R.T @ up) @ obj.pose.size)
 
 
-def _lowest_seen(est: Any, frame: RGBDFrame, support: Plane | None) -> float:
-    """Height above the support [m] of the lowest seen points of `est` (the 5th percentile of its mask's
-    depth points, in the frame's base frame); -inf without a mask, a support or points. Something standing
-    on the support shows points near it; something held in the air does not."""
+def _seen_heights(est: Any, frame: RGBDFrame, support: Plane | None) -> np.ndarray | None:
+    """Heights above the support [m] of the depth points of `est`'s mask (in the frame's base frame); None
+    without a mask, a support or 10 points. Something standing on the support shows points near it;
+    something held in the air does not."""
     mask = getattr(est, "mask", None)
     if support is None or mask is None or frame.T_base_cam is None:
-        return -math.inf
+        return None
     pts = back_project(frame.depth_m, frame.intrinsics, mask)
     if len(pts) < 10:
-        return -math.inf
-    heights = support.height(transform_points(np.asarray(frame.T_base_cam, dtype=np.float64), pts))
-    return float(np.percentile(heights, 5.0))
+        return None
+    return support.height(transform_points(np.asarray(frame.T_base_cam, dtype=np.float64), pts))
 
 
 def _top_height(obj: ObjectModel, support: Plane | None) -> float:

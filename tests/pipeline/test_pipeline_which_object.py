@@ -164,10 +164,14 @@ class World:
     grounder gives the probabilities `p_before` (A, B); with an object in the hand (a clearer view)
     `p_after`."""
 
-    def __init__(self, arm, gripper, p_before=(0.5, 0.4), p_after=(0.1, 0.8), held_box_on_table=False):
+    def __init__(
+        self, arm, gripper, p_before=(0.5, 0.4), p_after=(0.1, 0.8), held_box_on_table=False, hanging=False
+    ):
         self.arm, self.gripper = arm, gripper
         self.p_before, self.p_after = p_before, p_after
         self.held_box_on_table = held_box_on_table  # the held box's estimate still stands on the table
+        # the held box hangs from the jaws tilted, 4 cm up, one edge of it still on the table
+        self.hanging = hanging
         self.estimates: list = []
 
     def held(self) -> str | None:
@@ -182,6 +186,8 @@ class World:
     def centres(self) -> dict[str, np.ndarray]:
         held = self.held()
         tcp = ROBOT.fk_tcp(self.arm.joint_positions())[:3, 3]
+        if self.hanging:
+            return {n: (h + np.array([0.0, 0.0, 0.04]) if n == held else h) for n, h in HOME.items()}
         return {n: (tcp.copy() if n == held else h) for n, h in HOME.items()}
 
     def render(self, T_base_cam) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
@@ -196,6 +202,10 @@ class World:
             y = -(v - K.cy) / K.fy * d
             top = (np.abs(x - t[0]) <= SIZE[0] / 2) & (np.abs(y - t[1]) <= SIZE[2] / 2) & (d < depth)
             depth[top], rgb[top], owner[top] = d, RGB[name], name
+            if self.hanging and name == self.held():
+                rows, cols = np.nonzero(top)
+                edge = cols == cols.min()  # its resting edge: 5 mm above the table
+                depth[rows[edge], cols[edge]] = T_base_cam[2, 3] - 0.005
         return depth.astype(np.float32), rgb, {n: owner == n for n in HOME}
 
 
@@ -237,6 +247,7 @@ def _world_cell(
     command=None,
     places=None,
     held_box_on_table=False,
+    hanging=False,
     **kwargs,
 ):
     """Pick `command_prompt` in a `World` (re-observing after the lift; no self filter: the fake camera
@@ -249,7 +260,7 @@ def _world_cell(
         None,
         config,
         command,
-        world=lambda arm, grip: World(arm, grip, p_before, p_after, held_box_on_table),
+        world=lambda arm, grip: World(arm, grip, p_before, p_after, held_box_on_table, hanging),
         places=places,
     )
     return outcome, arm, gripper, gripper.log
@@ -295,6 +306,21 @@ def test_a_held_object_whose_box_reaches_down_to_the_table_is_still_judged():
     outcome, arm, _, log = _world_cell("the box", held_box_on_table=True, retry_wrong_object=False)
     assert outcome.reason == "wrong_object", outcome.message
     assert _put_back_index(arm.sent, outcome.attempts[0].grasp, log) > 0
+
+
+def test_an_object_hanging_from_the_jaws_with_an_edge_on_the_table_is_not_picked():
+    # The box (the right one) hangs tilted after the lift: its centre rose 4 cm of the 10 cm lift (more than
+    # `moved_min_m`, so not "still where it stood"), and one edge of it rests on the table. Not a pick: the
+    # jaws open and the attempt is "slipped", every time.
+    outcome, _, _, log = _world_cell("the box", (0.5, 0.4), (0.8, 0.1), hanging=True)
+    assert not outcome.success
+    assert outcome.attempts and {a.result for a in outcome.attempts} == {"slipped"}, outcome.message
+    assert all("hangs from the jaws" in a.message for a in outcome.attempts)
+    assert "40 mm of the 100 mm lift" in outcome.attempts[0].message
+    assert log[-1][0] == "open"
+    # held in the air all the while (the same box lifted with the tcp), it is a pick
+    outcome, _, _, _ = _world_cell("the box", (0.5, 0.4), (0.8, 0.1))
+    assert outcome.success, outcome.message
 
 
 def test_a_wrong_object_is_put_back_and_the_better_one_tried_once():

@@ -10,6 +10,7 @@ from prompose_grasp.perception.fit.core import (
     grow_to_seen,
     mask_coverage,
     protrusion_points,
+    seen_surface,
     visible_prior_mask,
 )
 
@@ -23,5 +24,6 @@ __all__ = [
     "grow_to_seen",
     "mask_coverage",
     "protrusion_points",
+    "seen_surface",
     "visible_prior_mask",
 ]

@@ -74,6 +74,7 @@ __all__ = [
     "grow_to_seen",
     "mask_coverage",
     "protrusion_points",
+    "seen_surface",
     "visible_prior_mask",
 ]
 
@@ -358,6 +359,8 @@ class FitResult:
             next warm-started call.
         coverage: `mask_coverage` of the result in the scene passed to `fit_pose`, in [0, 1]; NaN without
             a scene.
+        surface_points: (M, 3) the object's seen surface in the camera frame [m] (`seen_surface`: the
+            points the box was grown to), or None without a scene.
     """
 
     pose: Pose9D
@@ -373,6 +376,7 @@ class FitResult:
     time_s: float
     prior: ShapePrior | None = None
     coverage: float = math.nan
+    surface_points: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -1255,12 +1259,61 @@ def canonicalize_symmetry(pose: Pose9D, symmetry: str, up_cam: ArrayLike | None 
     return Pose9D(project_to_so3(R), t, size)
 
 
+def seen_surface(
+    pose: Pose9D, plane: tuple[np.ndarray, float] | None, config: FitConfig, scene: SceneView | None
+) -> np.ndarray:
+    """(M, 3) camera-frame points of the object's seen surface next to the fitted box `pose` [m]; (0, 3)
+    without a `scene`.
+
+    Which points count (the `grow_*` settings of `FitConfig`):
+
+    - the points of the scene's mask at its own median depth (`grow_median_px`), not the raw points: depth
+      noise along the rays moves silhouette points sideways, out of the true box by up to a centimetre on a
+      far object;
+    - with a support plane, only points more than `grow_plane_clearance_m` above it (table pixels that a
+      mask took in);
+    - points with more than `grow_density_min` neighbours within the link radius (`grow_density_radius_m`,
+      or `grow_density_spacings` times the points' median spacing where they are sparser): a flying pixel or
+      a stray mask pixel has none;
+    - the pieces connected (through such points, at the link radius) to the box's inside: a strip of the
+      background or of another object that the mask bled onto lies apart from the object.
+
+    At most about 4096 points (an even stride over the mask): the extents and the shape seen from above,
+    not every pixel.
+    """
+    empty = np.zeros((0, 3))
+    if scene is None:
+        return empty
+    points = back_project(masked_median_depth(scene.depth_m, scene.mask, config.grow_median_px),
+                          scene.intrinsics)  # fmt: skip
+    pts = points[:: max(1, len(points) // 4096)]
+    if plane is not None:
+        pts = pts[pts @ plane[0] + plane[1] > config.grow_plane_clearance_m]
+    if len(pts) < 2:
+        return empty
+    tree = cKDTree(pts)
+    # the points' own spacing sets the link radius: a far or small object is sampled sparsely
+    spacing = float(np.median(tree.query(pts, k=2)[0][:, 1]))
+    link = max(config.grow_density_radius_m, config.grow_density_spacings * spacing)
+    # one neighbour query serves both tests: a point's neighbours are its pairs (and itself)
+    pairs = tree.query_pairs(link, output_type="ndarray")
+    dense = np.bincount(pairs.ravel(), minlength=len(pts)) + 1 > config.grow_density_min
+    if not np.any(dense):
+        return empty
+    pairs = pairs[dense[pairs[:, 0]] & dense[pairs[:, 1]]]  # the surface links through dense points only
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(pts), len(pts)))
+    _, label = connected_components(graph, directed=False)
+    inside = dense & np.all(np.abs((pts - pose.t) @ pose.R) <= 0.5 * pose.size, axis=1)
+    return pts[dense & np.isin(label, np.unique(label[inside]))]
+
+
 def grow_to_seen(
     pose: Pose9D,
     symmetry: str,
     plane: tuple[np.ndarray, float] | None,
     config: FitConfig,
     scene: SceneView | None,
+    surface: np.ndarray | None = None,
 ) -> Pose9D:
     """`pose` with each face moved out to the seen surface beyond it (never in).
 
@@ -1269,50 +1322,21 @@ def grow_to_seen(
     farther), so where the prior's shape differs from the instance's (a hammer's head, a curved banana, a
     teapot's spout on a superquadric) the fit leaves whole parts of the seen object outside.
 
-    Which points count as the object's surface:
-
-    - the points of the scene's mask at its own median depth (`grow_median_px`), not the raw points: depth
-      noise along the rays moves silhouette points sideways, out of the true box by up to a centimetre on a
-      far object (without a `scene` nothing moves);
-    - with a support plane, only points more than `grow_plane_clearance_m` above it (table pixels that a
-      mask took in);
-    - points with more than `grow_density_min` neighbours within the link radius (`grow_density_radius_m`,
-      or `grow_density_spacings` times the points' median spacing where they are sparser): a flying pixel or
-      a stray mask pixel has none;
-    - the pieces connected (through such points, at the link radius) to the fitted box's inside: a strip of
-      the background or of another object that the mask bled onto lies apart from the object.
-
-    A face moves out when at least `grow_min_points` of them lie beyond it by more than `grow_margin_m`, to
-    the `grow_min_points`-th farthest less that margin (the band the noise of the median depth spans). A
-    round section (`y_continuous`) grows its radius about the fitted axis; an upright box's bottom stays on
-    the plane. `grow_min_points` 0 turns it off.
+    The surface is `seen_surface(pose, plane, config, scene)` (pass it as `surface` where it is already
+    computed; without either nothing moves). A face moves out when at least `grow_min_points` of its points
+    lie beyond it by more than `grow_margin_m`, to the `grow_min_points`-th farthest less that margin (the
+    band the noise of the median depth spans). A round section (`y_continuous`) grows its radius about the
+    fitted axis; an upright box's bottom stays on the plane. `grow_min_points` 0 turns it off.
     """
-    if config.grow_min_points <= 0 or scene is None:
-        return pose
-    points = back_project(masked_median_depth(scene.depth_m, scene.mask, config.grow_median_px),
-                          scene.intrinsics)  # fmt: skip
-    pts = points[:: max(1, len(points) // 4096)]  # an even stride: the extents, not every pixel
-    if plane is not None:
-        pts = pts[pts @ plane[0] + plane[1] > config.grow_plane_clearance_m]
     k = config.grow_min_points
-    if len(pts) < max(k, 2):
+    if k <= 0:
         return pose
-    tree = cKDTree(pts)
-    # the points' own spacing sets the link radius: a far or small object is sampled sparsely
-    spacing = float(np.median(tree.query(pts, k=2)[0][:, 1]))
-    link = max(config.grow_density_radius_m, config.grow_density_spacings * spacing)
-    # one neighbour query serves both tests: a point's neighbours are its pairs (and itself)
-    pairs = tree.query_pairs(link, output_type="ndarray")
-    dense = np.bincount(pairs.ravel(), minlength=len(pts)) + 1 > config.grow_density_min
-    if np.count_nonzero(dense) < k:
+    if surface is None:
+        surface = seen_surface(pose, plane, config, scene)
+    if len(surface) < max(k, 2):
         return pose
-    pairs = pairs[dense[pairs[:, 0]] & dense[pairs[:, 1]]]  # the surface links through dense points only
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(pts), len(pts)))
-    _, label = connected_components(graph, directed=False)
     half = 0.5 * pose.size
-    local = (pts - pose.t) @ pose.R
-    inside = dense & np.all(np.abs(local) <= half, axis=1)
-    local = local[dense & np.isin(label, np.unique(label[inside]))]
+    local = (surface - pose.t) @ pose.R
     lo, hi = -half.copy(), half.copy()
     margin = config.grow_margin_m
 
@@ -1601,7 +1625,9 @@ def fit_pose(
         if turned is not None and turned is not st:
             st = turned
             cost, op, po, _, _ = _evaluate(pbx, st, False)
-    pose = canonicalize_symmetry(grow_to_seen(pbx.pose(st), sym, plane, cfg, scene), sym, up)
+    fitted = pbx.pose(st)
+    surface = seen_surface(fitted, plane, cfg, scene)
+    pose = canonicalize_symmetry(grow_to_seen(fitted, sym, plane, cfg, scene, surface), sym, up)
     result = FitResult(
         pose=pose,
         loss=op + po,
@@ -1616,6 +1642,7 @@ def fit_pose(
         time_s=time.perf_counter() - t0,
         prior=shapes[k_best],
         coverage=math.nan if scene is None else mask_coverage(pose, shapes[k_best], scene),
+        surface_points=surface if scene is not None else None,
     )
     log.debug("fit %s: loss %.3g m^2, %d hypotheses, %d iterations", prior.name, result.loss,
               result.hypotheses, result.iterations)  # fmt: skip
