@@ -245,6 +245,9 @@ def _check_appearance(a: Any, where: str) -> None:
 
 
 def _check_texture(texture: Any, base: Path, where: str) -> None:
+    """An object's `texture`: null (none), a builtin name, or an image file (relative to the scene file)."""
+    if texture is None:
+        return
     if not isinstance(texture, str):
         raise InvalidInputError(f"{where} must be a builtin texture or an image file, got {texture!r:.60}")
     if texture not in BUILTIN_TEXTURES and not Path(_resolve(base, texture)).is_file():

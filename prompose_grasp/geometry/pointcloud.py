@@ -73,34 +73,32 @@ _MEDIAN_SAMPLES = 20_000
 def check_depth_units(depth: ArrayLike, name: str = "depth_m") -> None:
     """Refuse a depth image that no RGB-D camera measures in metres.
 
-    Accepted: readings >= 0 [m], with 0, NaN or +-inf where there is no reading, whose median (over the
-    readings above `MIN_VALID_DEPTH_M`) lies in `DEPTH_MEDIAN_RANGE_M` (5 cm - 10 m: the range of consumer
-    RGB-D cameras). An image without a single reading passes (whether one may be used is the caller's call).
+    The median of the image's readings (finite values farther than `MIN_VALID_DEPTH_M` from 0, of either
+    sign) must lie in `DEPTH_MEDIAN_RANGE_M` (5 cm - 10 m: the range of consumer RGB-D cameras). Single
+    readings are not judged: a negative or far one is "no reading" (`valid_depth_mask`), as sensor noise
+    makes them; a whole image out of range is a unit or sign mistake. An image without a single reading
+    passes (whether one may be used is the caller's call).
 
     Raises:
-        InvalidInputError: a finite negative reading, or a median outside the range; a median that is a
-            plausible distance in millimetres says so ("depth looks like millimetres: median 812; ...").
+        InvalidInputError: the median is negative (a sign mistake) or outside the range; a median that is a
+            plausible distance in millimetres says so ("depth_m looks like millimetres: median 812; ...").
     """
     D = np.asarray(depth)
-    finite = np.isfinite(D)
-    with np.errstate(invalid="ignore"):
-        negative = finite & (D < 0.0)
-    if np.any(negative):
-        raise InvalidInputError(
-            f"{name} holds {int(np.count_nonzero(negative))} negative readings (min "
-            f"{float(D[negative].min()):.4g}); depth along the optical axis is >= 0 m: mark pixels without a "
-            "reading with 0 or NaN"
-        )
     step = max(1, int(math.sqrt(D.size / _MEDIAN_SAMPLES)))
     sample = D[::step, ::step] if D.ndim == 2 else D.ravel()[:: step * step]
     with np.errstate(invalid="ignore"):
-        readings = sample[np.isfinite(sample) & (sample > MIN_VALID_DEPTH_M)]
+        readings = sample[np.isfinite(sample) & (np.abs(sample) > MIN_VALID_DEPTH_M)]
     if readings.size == 0:
         return
     median = float(np.median(readings))
     lo, hi = DEPTH_MEDIAN_RANGE_M
     if lo <= median <= hi:
         return
+    if median < 0.0:
+        raise InvalidInputError(
+            f"{name} is mostly negative (median {median:.4g}); depth along the optical axis is >= 0 m (mark "
+            "pixels without a reading with 0 or NaN)"
+        )
     if lo <= median / 1000.0 <= hi:
         raise InvalidInputError(
             f"{name} looks like millimetres: median {median:.4g}; pass metres "

@@ -8,6 +8,7 @@ three devices are context managers: ``with arm: ...`` connects and always discon
 from __future__ import annotations
 
 import abc
+import math
 from dataclasses import dataclass
 from types import TracebackType
 
@@ -70,6 +71,14 @@ class LinearCommand:
     accel_m_s2: float
 
 
+#: No pixel of a frame lies more than this far off the optical axis [deg], along u or v: pinhole (rectified)
+#: RGB-D cameras see ~60-90 deg across (RealSense D435 87 x 58 deg, D405 87 x 58, Azure Kinect 90 x 59);
+#: 80 deg each way (160 across) also admits any crop of such an image, whose principal point may lie outside
+#: it, and refuses focal lengths or principal points that no camera has (fx = 1 px on a 640-pixel image).
+_MAX_OFF_AXIS_DEG = 80.0
+_MAX_OFF_AXIS_TAN = math.tan(math.radians(_MAX_OFF_AXIS_DEG))
+
+
 def _timestamp(value: object) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
         raise InvalidInputError(
@@ -94,11 +103,14 @@ class RGBDFrame:
 
     Attributes:
         rgb: (H, W, 3) uint8.
-        depth_m: (H, W) float32 depth along the optical axis [m], >= 0; 0, NaN or +-inf where there is no
-            reading. The median of the readings must lie in 5 cm - 10 m (`DEPTH_MEDIAN_RANGE_M`: what
-            consumer RGB-D cameras measure); a median of hundreds or thousands is refused as millimetres.
-        intrinsics: a `CameraIntrinsics` of both images (H = intrinsics.height, W = intrinsics.width), its
-            principal point inside the image. A (3, 3) matrix K is not taken as is: build the intrinsics with
+        depth_m: (H, W) float32 depth along the optical axis [m]; 0, NaN, inf or a negative value where
+            there is no reading. The median of the readings must lie in 5 cm - 10 m
+            (`DEPTH_MEDIAN_RANGE_M`: what consumer RGB-D cameras measure): a median in the hundreds or
+            thousands is refused as millimetres, a negative one as a sign mistake
+            (`geometry.pointcloud.check_depth_units`).
+        intrinsics: a `CameraIntrinsics` of both images (H = intrinsics.height, W = intrinsics.width) that
+            puts no pixel more than 80 deg off the optical axis along u or v (a pinhole camera, or a crop of
+            one). A (3, 3) matrix K is not taken as is: build the intrinsics with
             `CameraIntrinsics.from_K(K, width, height)`.
         timestamp_s: capture time [s] (device or sim clock), a finite number.
         T_base_cam: (4, 4) camera pose in the robot base frame (OpenCV camera axes) where known, else None.
@@ -126,10 +138,14 @@ class RGBDFrame:
                 f"height), got {type(K).__name__}{hint}"
             )
         h, w = K.height, K.width
-        if not (-0.5 <= K.cx <= w - 0.5 and -0.5 <= K.cy <= h - 0.5):
+        # how far off the optical axis the image's edges lie, as tan(angle), along u and along v
+        reach = max(max(K.cx + 0.5, w - 0.5 - K.cx) / K.fx, max(K.cy + 0.5, h - 0.5 - K.cy) / K.fy)
+        if reach > _MAX_OFF_AXIS_TAN:
             raise InvalidInputError(
-                f"the principal point (cx, cy) = ({K.cx:g}, {K.cy:g}) px lies outside the {w} x {h} image; a "
-                "camera's optical axis passes through its image (cx in [-0.5, W-0.5], cy in [-0.5, H-0.5])"
+                f"the intrinsics (fx, fy, cx, cy) = ({K.fx:g}, {K.fy:g}, {K.cx:g}, {K.cy:g}) px put the "
+                f"edge of the {w} x {h} image {math.degrees(math.atan(reach)):.1f} deg off the optical axis; "
+                f"a pinhole camera (or a crop of one) sees at most {_MAX_OFF_AXIS_DEG:g} deg off it: check "
+                "the focal lengths, the principal point (pixels) and the image size"
             )
         rgb = _image(self.rgb, "rgb", f"({h}, {w}, 3) uint8")
         depth = _image(self.depth_m, "depth_m", f"({h}, {w}) float32 metres")

@@ -64,9 +64,9 @@ def validate_frame(
     """Check a grounding call's inputs and return them. Raises `InvalidInputError` saying what is wrong.
 
     Accepted: rgb (H, W, 3) uint8; depth_m (H, W) float32 or float64 metres with 0 / NaN for no reading and
-    at least one valid reading, none negative, their median a distance an RGB-D camera measures
-    (`check_depth_units`); intrinsics a `CameraIntrinsics` for (H, W); prompt a str with a word in Latin
-    letters (`language.check_prompt`; returned NFKC-normalised).
+    at least one valid reading, their median a distance an RGB-D camera measures (`check_depth_units`);
+    intrinsics a `CameraIntrinsics` for (H, W); prompt a str with a word in Latin letters
+    (`language.check_prompt`; returned NFKC-normalised).
     """
     if not isinstance(intrinsics, CameraIntrinsics):
         raise InvalidInputError(
