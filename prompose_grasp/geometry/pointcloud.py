@@ -101,7 +101,7 @@ def check_depth_units(depth: ArrayLike, name: str = "depth_m") -> None:
         )
     if lo <= median / 1000.0 <= hi:
         raise InvalidInputError(
-            f"{name} looks like millimetres: median {median:.4g}; pass metres "
+            f"{name} looks like millimetres: median {median:.0f}; pass metres "
             f"({name.removesuffix('_m')}_mm / 1000; RGB-D cameras measure {lo:g} - {hi:g} m)"
         )
     raise InvalidInputError(
