@@ -225,11 +225,11 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_run(args: argparse.Namespace) -> int:
-    import json
-
     _check_output_file(args.json_out, "--json")
     _check_input_file(args.calibration, "--calibration")
     _check_input_file(args.places, "--places")
+    import json
+
     from prompose_grasp.hardware.run import CellSpec, run_command
     from prompose_grasp.robot.interfaces import LinearCommand
 
@@ -358,17 +358,19 @@ def _write_text(path: str | None, text: str) -> None:
 
 
 def _run_estimate(args: argparse.Namespace) -> int:
+    _check_at_least(args.max_objects, "--max-objects", 1)
+    _check_output_file(args.json_out, "--json")
+    _check_output_file(args.overlay, "--overlay", _IMAGE_SUFFIXES)
     import json
 
     import cv2
 
     from prompose_grasp.perception.estimator import ProMPose
     from prompose_grasp.perception.frames_io import load_rgbd
+    from prompose_grasp.perception.grounding.language import check_prompt
     from prompose_grasp.perception.overlay import draw_poses
 
-    _check_at_least(args.max_objects, "--max-objects", 1)
-    _check_output_file(args.json_out, "--json")
-    _check_output_file(args.overlay, "--overlay", _IMAGE_SUFFIXES)
+    check_prompt(args.prompt, "--prompt")
     frame = load_rgbd(args.rgb, args.depth, args.depth_scale, tuple(args.intrinsics))
     estimator = ProMPose.default()
     estimates = estimator.estimate_all(frame, args.prompt, max_objects=args.max_objects)
@@ -411,13 +413,15 @@ def _run_estimate(args: argparse.Namespace) -> int:
 
 
 def _run_track(args: argparse.Namespace) -> int:
+    _check_output_file(args.json_out, "--json")
     import itertools
     import json
 
     from prompose_grasp.perception.estimator import ProMPose
     from prompose_grasp.perception.frames_io import list_sequence, load_rgbd
+    from prompose_grasp.perception.grounding.language import check_prompt
 
-    _check_output_file(args.json_out, "--json")
+    check_prompt(args.prompt, "--prompt")
     frames = list_sequence(args.sequence)
 
     def load(k: int, rgb: Path, depth: Path):

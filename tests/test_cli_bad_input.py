@@ -71,6 +71,25 @@ def test_estimate_refuses_bad_flags_before_loading(flags, match, frame_files, tm
     assert not (tmp_path / "overlay").exists() and not (tmp_path / "overlay.txt").exists()
 
 
+@pytest.mark.parametrize("command", ["estimate", "track"])
+def test_a_prompt_without_latin_letters_is_refused_before_loading(
+    command, frame_files, tmp_path, capsys, no_work
+):
+    if command == "estimate":
+        argv = _estimate(frame_files)
+    else:
+        argv = ["track", "--sequence", str(tmp_path), *INTRINSICS, "--prompt", "mug"]
+    argv[argv.index("--prompt") + 1] = "赤いマグカップ"
+    _refused(argv, capsys, "has no word in Latin letters")
+
+
+def test_estimate_names_the_depth_scale_of_millimetres_read_as_metres(frame_files, capsys, no_work):
+    _refused(_estimate(frame_files, "--depth-scale", "1"), capsys, "looks like millimetres: median 800")
+    capsys.readouterr()
+    main(_estimate(frame_files, "--depth-scale", "1"))
+    assert "the depth scale was 1 m per unit (a millimetre PNG takes 0.001)" in capsys.readouterr().err
+
+
 def test_estimate_refuses_bad_intrinsics_before_loading(frame_files, capsys, no_work):
     argv = _estimate(frame_files)
     argv[argv.index("--intrinsics") + 1] = "-60"
