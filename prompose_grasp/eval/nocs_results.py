@@ -221,7 +221,8 @@ def _allowed_globals() -> dict[tuple[str, str], Any]:
     for core in ("numpy.core", "numpy._core"):
         allowed[(f"{core}.multiarray", "_reconstruct")] = multiarray._reconstruct
         allowed[(f"{core}.multiarray", "scalar")] = multiarray.scalar
-        allowed[(f"{core}.numeric", "_frombuffer")] = numeric._frombuffer  # protocol 5
+        # protocol 5 rebuilds contiguous arrays from a buffer
+        allowed[(f"{core}.numeric", "_frombuffer")] = numeric._frombuffer  # type: ignore[attr-defined]
     for name in ("set", "frozenset", "complex", "slice"):
         for module in ("builtins", "__builtin__"):  # __builtin__: Python 2
             allowed[(module, name)] = getattr(builtins, name)
