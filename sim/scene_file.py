@@ -332,10 +332,9 @@ def parse_scene(doc: Mapping[str, Any], base_dir: str | Path = ".") -> SceneSpec
     if version != SCENE_VERSION or isinstance(version, bool):
         raise InvalidInputError(f"scene version {version!r} is not supported; this reader knows version 1")
     _scalar(doc, "seed", "the scene", minimum=0, integer=True)
-    _scalar(doc, "timestep_s", "the scene", minimum=0.0, strict=True, maximum=0.1)
+    _scalar(doc, "timestep_s", "the scene", minimum=0.0, strict=True)
     for key in ("settle", "floor"):
         _flag(doc, key, "the scene")
-    _text(doc, "name", "the scene")
     for i, light in enumerate(_items(doc, "lights")):
         where = f"lights[{i}]"
         _check_keys(light, ("pos", "dir", "diffuse", "castshadow"), where)
@@ -343,7 +342,11 @@ def parse_scene(doc: Mapping[str, Any], base_dir: str | Path = ".") -> SceneSpec
             raise InvalidInputError(f"{where} needs a pos")
         _vector(light, "pos", 3, where)
         _vector(light, "dir", 3, where)
-        _scalar(light, "diffuse", where, minimum=0.0)
+        if "diffuse" in light:  # one intensity, or (r, g, b)
+            if _is_number(light["diffuse"]):
+                _scalar(light, "diffuse", where, minimum=0.0)
+            else:
+                _vector(light, "diffuse", 3, where)
         _flag(light, "castshadow", where)
     if doc.get("headlight") is not None:
         h = _check_keys(doc["headlight"], ("ambient", "diffuse"), "headlight")
