@@ -5,12 +5,14 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import os
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import prompose_grasp
-from prompose_grasp.errors import PromposeError
+from prompose_grasp.errors import InvalidInputError, PromposeError
 
 if TYPE_CHECKING:  # the estimator loads torch: imported where a command needs it, so --help stays fast
     from prompose_grasp.perception.estimator import Estimate
@@ -35,6 +37,83 @@ def build_parser() -> argparse.ArgumentParser:
     # `train` parses its own arguments (prompose_grasp.perception.train) so that torch loads only when used.
     sub.add_parser("train", help="train the ProM-Pose network on a synthetic dataset (see: train --help)")
     return parser
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Argument checks. Every command checks its arguments first, before a model loads or a frame is read: a bad
+# one ends the command with exit status 2 and one line on stderr (`main`), never after the work.
+
+#: Extensions `--overlay` may have: the image formats OpenCV writes (`cv2.imwrite` picks it by extension).
+_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+
+
+def _check_output_file(path: str | None, flag: str, suffixes: Sequence[str] = ()) -> None:
+    """`path` (when given) can be written as a file: not a folder, its folder exists and is writable (and
+    the file, when it exists), its extension one of `suffixes` when given."""
+    if path is None:
+        return
+    p = Path(path)
+    if p.is_dir() or path.endswith(("/", os.sep)):
+        raise InvalidInputError(f"{flag} {path}: is a folder; give a file path")
+    if suffixes and p.suffix.lower() not in suffixes:
+        suffix = p.suffix or "(none)"
+        raise InvalidInputError(
+            f"{flag} {path}: unknown image extension {suffix!r}; use one of {', '.join(suffixes)}"
+        )
+    folder = p.parent
+    if not folder.is_dir():
+        raise InvalidInputError(f"{flag} {path}: folder {str(folder)!r} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
+        raise InvalidInputError(f"{flag} {path}: not writable")
+
+
+def _check_output_folder(path: str, flag: str) -> None:
+    """`path` is a folder, or can be made one: no file there, and its nearest existing parent is a writable
+    folder."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InvalidInputError(f"{flag} {path}: exists and is not a folder; give a folder to write into")
+    parent = p
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InvalidInputError(f"{flag} {path}: {str(parent)!r} is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InvalidInputError(f"{flag} {path}: {str(parent)!r} is not writable")
+
+
+def _check_input_file(path: str | None, flag: str) -> None:
+    if path is not None and not Path(path).is_file():
+        raise InvalidInputError(f"{flag} {path}: no such file")
+
+
+def _check_at_least(value: int | None, flag: str, minimum: int) -> None:
+    if value is not None and value < minimum:
+        raise InvalidInputError(f"{flag} must be >= {minimum}, got {value}")
+
+
+def _check_scene_file(path: str) -> None:
+    """The scene file exists and parses as YAML / JSON into a mapping; the simulator checks its keys when it
+    loads it (`sim.scene_file.load_scene`), before anything else."""
+    import json
+
+    import yaml
+
+    p = Path(path)
+    if not p.is_file():
+        raise InvalidInputError(f"--scene {path}: no such file")
+    if p.suffix.lower() not in (".yaml", ".yml", ".json"):
+        raise InvalidInputError(f"--scene {path}: a scene file is .yaml, .yml or .json")
+    try:
+        text = p.read_text(encoding="utf-8")
+        doc = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
+    except (OSError, UnicodeDecodeError, ValueError, yaml.YAMLError) as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        why = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise InvalidInputError(f"--scene {path}: not a readable scene file{at}: {why}") from None
+    if not isinstance(doc, dict):
+        raise InvalidInputError(f"--scene {path}: a scene file holds a mapping, got {type(doc).__name__}")
 
 
 def _add_bench(sub: argparse._SubParsersAction) -> None:
@@ -63,6 +142,9 @@ def _run_bench(args: argparse.Namespace) -> int:
     from prompose_grasp.eval.bench_estimator import format_report, parse_methods, run_estimator_benchmark
     from prompose_grasp.eval.report import write_report_json
 
+    _check_output_file(args.json_out, "--json")
+    _check_at_least(args.max_frames, "--max-frames", 1)
+    _check_at_least(args.candidates, "--candidates", 1)
     methods = parse_methods(args.methods)  # a bad name fails before the estimator loads
     report = run_estimator_benchmark(args.data, args.split, args.max_frames, args.candidates, methods=methods)
     print(format_report(report))
@@ -91,11 +173,13 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
 def _run_demo(args: argparse.Namespace) -> int:
     # The simulator lives in `sim`, which the library never imports: run it as its own process.
     import subprocess
-    from pathlib import Path
 
     scene = args.scene or str(
         Path(__file__).resolve().parents[1] / "sim" / "scenes" / "tabletop_household.yaml"
     )
+    _check_scene_file(scene)
+    _check_output_folder(args.out, "--out")
+    _check_at_least(args.seed, "--seed", 0)
     cmd = [sys.executable, "-m", "sim", "pick", "--scene", scene, "--command", args.text, "--out", args.out,
            "--seed", str(args.seed)]  # fmt: skip
     if args.video:
@@ -141,6 +225,9 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_run(args: argparse.Namespace) -> int:
+    _check_output_file(args.json_out, "--json")
+    _check_input_file(args.calibration, "--calibration")
+    _check_input_file(args.places, "--places")
     import json
 
     from prompose_grasp.hardware.run import CellSpec, run_command
@@ -204,6 +291,11 @@ def _run_bench_pick(args: argparse.Namespace) -> int:
     # The simulator lives in `sim`, which the library never imports: run it as its own process.
     import subprocess
 
+    _check_output_file(args.json_out, "--json")
+    if args.out is not None:
+        _check_output_folder(args.out, "--out")
+    _check_at_least(args.episodes, "--episodes", 1)
+    _check_at_least(args.seed0, "--seed0", 0)
     cmd = [sys.executable, "-m", "sim", "bench-pick", "--scenario", args.scenario,
            "--episodes", str(args.episodes), "--seed0", str(args.seed0)]  # fmt: skip
     for flag in ("oracle_mask", "real_meshes", "place"):
@@ -266,14 +358,19 @@ def _write_text(path: str | None, text: str) -> None:
 
 
 def _run_estimate(args: argparse.Namespace) -> int:
+    _check_at_least(args.max_objects, "--max-objects", 1)
+    _check_output_file(args.json_out, "--json")
+    _check_output_file(args.overlay, "--overlay", _IMAGE_SUFFIXES)
     import json
 
     import cv2
 
     from prompose_grasp.perception.estimator import ProMPose
     from prompose_grasp.perception.frames_io import load_rgbd
+    from prompose_grasp.perception.grounding.language import check_prompt
     from prompose_grasp.perception.overlay import draw_poses
 
+    check_prompt(args.prompt, "--prompt")
     frame = load_rgbd(args.rgb, args.depth, args.depth_scale, tuple(args.intrinsics))
     estimator = ProMPose.default()
     estimates = estimator.estimate_all(frame, args.prompt, max_objects=args.max_objects)
@@ -297,7 +394,8 @@ def _run_estimate(args: argparse.Namespace) -> int:
             labels=[_overlay_label(args.prompt, e) for e in best],
             masks=[e.mask for e in best],
         )
-        cv2.imwrite(args.overlay, image[..., ::-1])
+        if not cv2.imwrite(args.overlay, image[..., ::-1]):
+            raise InvalidInputError(f"--overlay {args.overlay}: the image could not be written")
         print(f"wrote {args.overlay}", file=sys.stderr)
     if estimates and estimates[0].contenders >= 2:
         n = estimates[0].contenders
@@ -315,17 +413,23 @@ def _run_estimate(args: argparse.Namespace) -> int:
 
 
 def _run_track(args: argparse.Namespace) -> int:
+    _check_output_file(args.json_out, "--json")
+    import itertools
     import json
 
     from prompose_grasp.perception.estimator import ProMPose
     from prompose_grasp.perception.frames_io import list_sequence, load_rgbd
+    from prompose_grasp.perception.grounding.language import check_prompt
 
+    check_prompt(args.prompt, "--prompt")
     frames = list_sequence(args.sequence)
+
+    def load(k: int, rgb: Path, depth: Path):
+        return load_rgbd(rgb, depth, args.depth_scale, tuple(args.intrinsics), timestamp_s=float(k))
+
+    first = load(*frames[0])  # the intrinsics, the depth scale and the images are checked before any work
     estimator = ProMPose.default()
-    stream = (
-        load_rgbd(rgb, depth, args.depth_scale, tuple(args.intrinsics), timestamp_s=float(k))
-        for k, rgb, depth in frames
-    )
+    stream = itertools.chain([first], (load(*f) for f in frames[1:]))
     out = sys.stdout if args.json_out is None else open(args.json_out, "w")
     try:
         for (index, _, _), est in zip(frames, estimator.track(stream, args.prompt)):
@@ -356,6 +460,7 @@ def _run_eval_nocs(args: argparse.Namespace) -> int:
 
     from prompose_grasp.eval import compute_nocs_map, format_nocs_table, load_nocs_results
 
+    _check_output_file(args.json_out, "--json")
     results = load_nocs_results(args.results)
     kwargs = {} if args.synsets is None else {"synset_names": args.synsets}
     table = compute_nocs_map(results, iou_mode=args.iou_mode, **kwargs)
@@ -392,7 +497,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args))
     except PromposeError as exc:
-        print(f"prompose-grasp {args.command}: error: {exc}", file=sys.stderr)
+        message = " ".join(str(exc).split())  # one line, whatever the message holds
+        print(f"prompose-grasp {args.command}: error: {message}", file=sys.stderr)
         return 2
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import numbers
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -280,8 +281,13 @@ def run_episode(
     from prompose_grasp.perception.estimator import ProMPose
 
     t_wall = time.perf_counter()
-    estimator = estimator or ProMPose.default()
+    # the arguments and the scene file are checked before the estimator loads (seconds) or anything runs
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0):
+        raise InvalidInputError(f"seed must be an integer >= 0 or None (the file's), got {seed!r}")
+    if out_dir is not None and Path(out_dir).exists() and not Path(out_dir).is_dir():
+        raise InvalidInputError(f"out_dir {str(out_dir)!r} exists and is not a folder")
     spec = load_scene(scene)
+    estimator = estimator or ProMPose.default()
     if camera is None:
         fixed = [c["name"] for c in spec.cameras if "pose" in c]
         if not fixed:

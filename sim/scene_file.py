@@ -32,9 +32,11 @@ models, robots and grippers raise `UnknownNameError` listing the accepted names.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
+import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,10 +47,11 @@ import numpy as np
 from prompose_grasp.errors import InvalidInputError, UnknownNameError
 from prompose_grasp.geometry.se3 import R_from_quat_wxyz, make_T, random_rotation
 from sim.camera import CameraSpec, look_at
-from sim.noise import NOISE_PRESETS, noise_preset
+from sim.noise import NOISE_PRESETS
 from sim.objects import FAMILIES, SYMMETRIES, ObjectAsset, load_mesh_object, make_object
 from sim.robot_scene import add_robot
 from sim.world import (
+    BUILTIN_TEXTURES,
     Appearance,
     SceneBuilder,
     SimWorld,
@@ -153,10 +156,104 @@ def _check_keys(d: Any, allowed: tuple[str, ...], where: str) -> Mapping[str, An
 
 
 def _vec(x: Any, n: int, where: str) -> np.ndarray:
-    a = np.asarray(x, dtype=np.float64).reshape(-1)
+    if isinstance(x, str | bytes | Mapping):
+        raise InvalidInputError(f"{where} must be {n} finite numbers, got {x!r:.60}")
+    try:
+        a = np.asarray(x, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{where} must be {n} finite numbers, got {x!r:.60}") from None
     if a.shape != (n,) or not np.all(np.isfinite(a)):
-        raise InvalidInputError(f"{where} must be {n} finite numbers, got {x!r}")
+        raise InvalidInputError(f"{where} must be {n} finite numbers, got {x!r:.60}")
     return a
+
+
+def _is_number(v: Any) -> bool:
+    """A finite real number (Python or numpy), not a bool."""
+    return isinstance(v, numbers.Real) and not isinstance(v, bool | np.bool_) and math.isfinite(float(v))
+
+
+def _scalar(
+    d: Mapping[str, Any],
+    key: str,
+    where: str,
+    minimum: float | None = None,
+    strict: bool = False,
+    maximum: float | None = None,
+    integer: bool = False,
+) -> None:
+    """Check `d[key]`, when present: a finite number (an integer with `integer`), >= `minimum` (> with
+    `strict`) and < `maximum`."""
+    if key not in d:
+        return
+    v = d[key]
+    ok = _is_number(v) and (not integer or float(v).is_integer())
+    if ok and minimum is not None:
+        ok = v > minimum if strict else v >= minimum
+    if ok and maximum is not None:
+        ok = v < maximum
+    if not ok:
+        kind = "integer" if integer else "number"
+        bound = "" if minimum is None else f" {'>' if strict else '>='} {minimum:g}"
+        bound += "" if maximum is None else f" and < {maximum:g}"
+        raise InvalidInputError(f"{where}.{key} must be a finite {kind}{bound}, got {v!r:.60}")
+
+
+def _vector(d: Mapping[str, Any], key: str, n: int, where: str, minimum: float | None = None) -> None:
+    """Check `d[key]`, when present: `n` finite numbers, each > `minimum` when given."""
+    if key in d:
+        a = _vec(d[key], n, f"{where}.{key}")
+        if minimum is not None and np.any(a <= minimum):
+            raise InvalidInputError(f"{where}.{key} must be {n} numbers > {minimum:g}, got {d[key]!r:.60}")
+
+
+def _flag(d: Mapping[str, Any], key: str, where: str) -> None:
+    if key in d and not isinstance(d[key], bool):
+        raise InvalidInputError(f"{where}.{key} must be true or false, got {d[key]!r:.60}")
+
+
+def _text(d: Mapping[str, Any], key: str, where: str) -> None:
+    if key in d and not isinstance(d[key], str):
+        raise InvalidInputError(f"{where}.{key} must be a string, got {d[key]!r:.60}")
+
+
+def _items(doc: Mapping[str, Any], key: str) -> list[Any]:
+    """The list under `key` (absent or null: empty)."""
+    value = doc.get(key)
+    if value is None:
+        return []
+    if not isinstance(value, list | tuple):
+        raise InvalidInputError(f"{key} must be a list, got {type(value).__name__}")
+    return list(value)
+
+
+def _named(value: Any, known: Any, kind: str) -> None:
+    """Raise `UnknownNameError` unless `value` is a str among `known` (a dict's keys or a sequence)."""
+    if not isinstance(value, str) or value not in known:
+        raise UnknownNameError(kind, value, sorted(known) if isinstance(known, set | dict) else known)
+
+
+def _check_appearance(a: Any, where: str) -> None:
+    """A support's `appearance`: "random" or the keys of `sim.world.Appearance`."""
+    if a == "random":
+        return
+    keys = tuple(f.name for f in dataclasses.fields(Appearance))
+    _check_keys(a, keys, where)
+    try:
+        Appearance(**a)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"{where}: {exc}") from None
+
+
+def _check_texture(texture: Any, base: Path, where: str) -> None:
+    """An object's `texture`: null (none), a builtin name, or an image file (relative to the scene file)."""
+    if texture is None:
+        return
+    if not isinstance(texture, str):
+        raise InvalidInputError(f"{where} must be a builtin texture or an image file, got {texture!r:.60}")
+    if texture not in BUILTIN_TEXTURES and not Path(_resolve(base, texture)).is_file():
+        raise InvalidInputError(
+            f"{where} {texture!r} is neither a builtin ({', '.join(BUILTIN_TEXTURES)}) nor an image file"
+        )
 
 
 def _rpy_R(rpy_deg: np.ndarray) -> np.ndarray:
@@ -186,17 +283,19 @@ def parse_pose(d: Any, where: str, allow_look_at: bool = False) -> np.ndarray:
     return make_T(_rpy_R(_vec(d.get("rpy_deg", (0.0, 0.0, 0.0)), 3, f"{where}.rpy_deg")), pos)
 
 
-def _parse_mesh(d: Any, where: str) -> Mapping[str, Any]:
+def _parse_mesh(d: Any, where: str, base: Path | None = None) -> Mapping[str, Any]:
+    """Check an object's `mesh`; with `base` (the scene file's folder), a mesh path must name a file."""
     if isinstance(d, str):
-        return {"path": d}
+        d = {"path": d}
     _check_keys(d, ("family", "params", "path", "up_axis", "category", "symmetry", "collision"), where)
     if ("family" in d) == ("path" in d):
         raise InvalidInputError(f"{where} needs exactly one of 'family' or 'path'")
     if "family" in d:
-        if d["family"] not in FAMILIES:
-            raise UnknownNameError("object family", d["family"], sorted(FAMILIES))
+        _named(d["family"], FAMILIES, "object family")
         params = d.get("params", {}) or {}
         known = FAMILIES[d["family"]].ranges
+        if not isinstance(params, Mapping):
+            raise InvalidInputError(f"{where}.params must be a mapping, got {type(params).__name__}")
         for key, value in params.items():
             if key not in known:
                 raise UnknownNameError(f"parameter of family {d['family']!r} in {where}", key, sorted(known))
@@ -204,17 +303,57 @@ def _parse_mesh(d: Any, where: str) -> Mapping[str, Any]:
                 lo, hi = _vec(value, 2, f"{where}.params.{key}")
                 if not lo <= hi:
                     raise InvalidInputError(f"{where}.params.{key}: a range [lo, hi] needs lo <= hi")
-    if "symmetry" in d and d["symmetry"] not in SYMMETRIES:
-        raise UnknownNameError("symmetry", d["symmetry"], SYMMETRIES)
+            else:
+                _scalar(params, key, f"{where}.params")
+    else:
+        _text(d, "path", where)
+        if base is not None and not Path(_resolve(base, d["path"])).is_file():
+            raise InvalidInputError(f"{where}.path {d['path']!r}: no such mesh file (relative to {base})")
+    for key in ("up_axis", "category", "collision"):
+        _text(d, key, where)
+    if "symmetry" in d:
+        _named(d["symmetry"], SYMMETRIES, "symmetry")
     return d
 
 
 def parse_scene(doc: Mapping[str, Any], base_dir: str | Path = ".") -> SceneSpec:
-    """Validate a scene document (already loaded from YAML/JSON) into a `SceneSpec`."""
+    """Validate a scene document (already loaded from YAML/JSON) into a `SceneSpec`.
+
+    Every key is checked here, before anything is built: names against the known choices, numbers for
+    type, finiteness and sign, vectors for length, mesh and texture files for existence (relative to
+    `base_dir`), `pipeline` against `PickConfig`.
+
+    Raises:
+        InvalidInputError, UnknownNameError: the first thing wrong, named by its place in the document.
+    """
+    base = Path(base_dir)
     _check_keys(doc, _TOP_KEYS, "the scene")
     version = doc.get("version", SCENE_VERSION)
-    if version != SCENE_VERSION:
+    if version != SCENE_VERSION or isinstance(version, bool):
         raise InvalidInputError(f"scene version {version!r} is not supported; this reader knows version 1")
+    _scalar(doc, "seed", "the scene", minimum=0, integer=True)
+    _scalar(doc, "timestep_s", "the scene", minimum=0.0, strict=True)
+    for key in ("settle", "floor"):
+        _flag(doc, key, "the scene")
+    for i, light in enumerate(_items(doc, "lights")):
+        where = f"lights[{i}]"
+        _check_keys(light, ("pos", "dir", "diffuse", "castshadow"), where)
+        if "pos" not in light:
+            raise InvalidInputError(f"{where} needs a pos")
+        _vector(light, "pos", 3, where)
+        _vector(light, "dir", 3, where)
+        if "diffuse" in light:  # one intensity, or (r, g, b)
+            if _is_number(light["diffuse"]):
+                _scalar(light, "diffuse", where, minimum=0.0)
+            else:
+                _vector(light, "diffuse", 3, where)
+        _flag(light, "castshadow", where)
+    if doc.get("headlight") is not None:
+        h = _check_keys(doc["headlight"], ("ambient", "diffuse"), "headlight")
+        for key in ("ambient", "diffuse"):
+            _scalar(h, key, "headlight", minimum=0.0)
+    if doc.get("pipeline") is not None:
+        _check_pipeline(doc["pipeline"])
     robot = doc.get("robot")
     if robot is not None:
         _check_keys(robot, ("model", "base_pose", "home_q_rad"), "robot")
@@ -232,7 +371,7 @@ def parse_scene(doc: Mapping[str, Any], base_dir: str | Path = ".") -> SceneSpec
         if robot is None:
             raise InvalidInputError("a gripper needs a robot: add `robot: {model: ...}` to the scene")
 
-    supports = list(doc.get("supports", []) or [])
+    supports = _items(doc, "supports")
     if "support" in doc:
         supports.insert(0, doc["support"])
     names: set[str] = set()
@@ -243,76 +382,111 @@ def parse_scene(doc: Mapping[str, Any], base_dir: str | Path = ".") -> SceneSpec
                 f"support type in {where}", getattr(s, "get", dict().get)("type"), SUPPORT_TYPES
             )
         _check_keys(s, _SUPPORT_KEYS[s["type"]], where)
+        _text(s, "name", where)
         if "pose" in s:
             parse_pose(s["pose"], f"{where}.pose")
-        if "on_top_of" in s and s["on_top_of"] not in names:
-            raise UnknownNameError(
-                f"support named in {where}.on_top_of (declare it first)", s["on_top_of"], sorted(names)
-            )
+        if "on_top_of" in s:
+            _named(s["on_top_of"], names, f"support named in {where}.on_top_of (declare it first)")
+        _vector(s, "at_m", 2, where)
+        _scalar(s, "yaw_deg", where)
+        for key in ("size_m", "inner_size_m"):
+            _vector(s, key, 2, where, minimum=0.0)
+        for key in ("height_m", "wall_height_m", "wall_m", "length_m", "width_m"):
+            _scalar(s, key, where, minimum=0.0, strict=True)
+        if "appearance" in s:
+            _check_appearance(s["appearance"], f"{where}.appearance")
         names.add(s.get("name", s["type"]))
 
-    cameras = list(doc.get("cameras", []) or [])
+    cameras = _items(doc, "cameras")
     for i, c in enumerate(cameras):
         where = f"cameras[{i}]"
         _check_keys(c, _CAMERA_KEYS, where)
         if "name" not in c:
             raise InvalidInputError(f"{where} needs a name")
+        _text(c, "name", where)
         if ("pose" in c) == ("mount" in c):
             raise InvalidInputError(f"{where} needs exactly one of 'pose' (fixed) or 'mount' (wrist)")
         if "pose" in c:
             parse_pose(c["pose"], f"{where}.pose", allow_look_at=True)
         else:
             _check_keys(c["mount"], ("body", "pose"), f"{where}.mount")
+            _text(c["mount"], "body", f"{where}.mount")
             parse_pose(c["mount"].get("pose", {}), f"{where}.mount.pose", allow_look_at=True)
             if "stand_in_pose" in c:
                 parse_pose(c["stand_in_pose"], f"{where}.stand_in_pose", allow_look_at=True)
+        for key in ("width", "height"):
+            _scalar(c, key, where, minimum=1, integer=True)
+        _scalar(c, "fovy_deg", where, minimum=0.0, strict=True, maximum=180.0)
         if "noise" in c:
-            noise_preset(c["noise"])
+            _named(c["noise"], NOISE_PRESETS, "noise model")
 
-    objects = list(doc.get("objects", []) or [])
+    objects = _items(doc, "objects")
     for i, o in enumerate(objects):
         where = f"objects[{i}]"
         _check_keys(o, _OBJECT_KEYS, where)
         if "name" not in o or "mesh" not in o:
             raise InvalidInputError(f"{where} needs a name and a mesh")
-        _parse_mesh(o["mesh"], f"{where}.mesh")
+        for key in ("name", "prompt"):
+            _text(o, key, where)
+        _parse_mesh(o["mesh"], f"{where}.mesh", base)
         placements = [k for k in ("pose", "place", "stack") if k in o]
         if len(placements) != 1:
             raise InvalidInputError(f"{where} needs exactly one of pose, place, stack; got {placements}")
         if "pose" in o:
             parse_pose(o["pose"], f"{where}.pose")
         if "place" in o:
-            _check_keys(o["place"], _PLACE_KEYS, f"{where}.place")
-            if o["place"].get("support") not in names:
-                raise UnknownNameError(f"support in {where}.place", o["place"].get("support"), sorted(names))
-            if o["place"].get("orientation", "upright") not in ("upright", "random"):
-                raise UnknownNameError("orientation", o["place"]["orientation"], ("upright", "random"))
-            if "region" in o["place"]:
-                _check_keys(o["place"]["region"], ("centre_m", "half_extents_m"), f"{where}.place.region")
+            place = _check_keys(o["place"], _PLACE_KEYS, f"{where}.place")
+            _named(place.get("support"), names, f"support in {where}.place")
+            orientation = place.get("orientation", "upright")
+            if not isinstance(orientation, str) or orientation not in ("upright", "random"):
+                raise UnknownNameError("orientation", orientation, ("upright", "random"))
+            _scalar(place, "margin_m", f"{where}.place", minimum=0.0)
+            if place.get("region") is not None:
+                region = _check_keys(place["region"], ("centre_m", "half_extents_m"), f"{where}.place.region")
+                _vector(region, "centre_m", 2, f"{where}.place.region")
+                _vector(region, "half_extents_m", 2, f"{where}.place.region", minimum=0.0)
         if "stack" in o:
-            _check_keys(o["stack"], _STACK_KEYS, f"{where}.stack")
-            if o["stack"].get("support") not in names:
-                raise UnknownNameError(f"support in {where}.stack", o["stack"].get("support"), sorted(names))
+            stack = _check_keys(o["stack"], _STACK_KEYS, f"{where}.stack")
+            _named(stack.get("support"), names, f"support in {where}.stack")
+            for key in ("rows", "cols", "layers"):
+                _scalar(stack, key, f"{where}.stack", minimum=1, integer=True)
+            for key in ("gap_m", "jitter_m", "yaw_jitter_deg"):
+                _scalar(stack, key, f"{where}.stack", minimum=0.0)
+            _vector(stack, "at_m", 2, f"{where}.stack")
         if "rgba" in o:
             Appearance(rgba=tuple(_vec(o["rgba"], 4, f"{where}.rgba")))
+        if "texture" in o:
+            _check_texture(o["texture"], base, f"{where}.texture")
         if o.get("appearance", "random") != "random":
             raise UnknownNameError(f"appearance in {where}", o["appearance"], ("random",))
-        if int(o.get("count", 1)) < 1:
-            raise InvalidInputError(f"{where}.count must be >= 1")
+        if "scale" in o:
+            scale = o["scale"]
+            if _is_number(scale):
+                scale = [scale] * 3
+            _vector({"scale": scale}, "scale", 3, where, minimum=0.0)
+        _scalar(o, "count", where, minimum=1, integer=True)
+        _scalar(o, "density_kg_m3", where, minimum=0.0, strict=True)
+        _flag(o, "fixed", where)
 
-    place_targets = list(doc.get("place_targets", []) or [])
+    place_targets = _items(doc, "place_targets")
     for i, p in enumerate(place_targets):
-        _check_keys(p, ("name", "support", "pattern"), f"place_targets[{i}]")
+        where = f"place_targets[{i}]"
+        _check_keys(p, ("name", "support", "pattern"), where)
+        if "name" not in p:
+            raise InvalidInputError(f"{where} needs a name")
+        _text(p, "name", where)
         if "pattern" in p:
-            _check_keys(p["pattern"], _PATTERN_KEYS, f"place_targets[{i}].pattern")
-        if p.get("support") not in names:
-            raise UnknownNameError(f"support in place_targets[{i}]", p.get("support"), sorted(names))
+            pattern = _check_keys(p["pattern"], _PATTERN_KEYS, f"{where}.pattern")
+            for key in ("rows", "cols", "layers"):
+                _scalar(pattern, key, f"{where}.pattern", minimum=1, integer=True)
+            _scalar(pattern, "gap_m", f"{where}.pattern", minimum=0.0)
+        _named(p.get("support"), names, f"support in {where}")
 
     return SceneSpec(
         name=str(doc.get("name", "scene")),
         seed=int(doc.get("seed", 0)),
         raw=doc,
-        base_dir=Path(base_dir),
+        base_dir=base,
         robot=robot,
         gripper=gripper,
         supports=tuple(supports),
@@ -325,20 +499,53 @@ def parse_scene(doc: Mapping[str, Any], base_dir: str | Path = ".") -> SceneSpec
     )
 
 
+def _check_pipeline(settings: Any) -> None:
+    """The scene's `pipeline` settings: `PickConfig` keyword arguments that make a valid `PickConfig`."""
+    from prompose_grasp.pipeline.pick_and_place import PickConfig
+
+    keys = tuple(f.name for f in dataclasses.fields(PickConfig) if f.name != "grasp")
+    _check_keys(settings, keys, "pipeline")
+    for key, value in settings.items():
+        if isinstance(value, list | tuple | Mapping):
+            raise InvalidInputError(f"pipeline.{key} must be a number, a string, true/false or null")
+    try:
+        PickConfig(**settings)
+    except (TypeError, ValueError) as exc:  # PickConfig converts with int() / float()
+        raise InvalidInputError(f"pipeline: {exc}") from None
+
+
 def load_scene(path: str | Path) -> SceneSpec:
-    """Read a YAML (.yaml/.yml) or JSON (.json) scene file and validate it."""
+    """Read a YAML (.yaml/.yml) or JSON (.json) scene file and validate it (`parse_scene`).
+
+    Raises:
+        InvalidInputError: the file is missing, not UTF-8 text, not valid YAML / JSON (the message gives the
+            line), or its document is not a valid scene. UnknownNameError: an unknown extension or name.
+    """
     p = Path(path)
     if not p.is_file():
         raise InvalidInputError(f"scene file {str(p)!r} does not exist")
-    text = p.read_text()
-    if p.suffix.lower() == ".json":
-        doc = json.loads(text)
-    elif p.suffix.lower() in (".yaml", ".yml"):
+    suffix = p.suffix.lower()
+    if suffix not in (".yaml", ".yml", ".json"):
+        raise UnknownNameError("scene file extension", p.suffix, (".yaml", ".yml", ".json"))
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InvalidInputError(f"scene file {str(p)!r} cannot be read as UTF-8 text: {exc}") from None
+    if suffix == ".json":
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise InvalidInputError(f"scene file {str(p)!r} is not valid JSON: {exc}") from None
+    else:
         import yaml
 
-        doc = yaml.safe_load(text)
-    else:
-        raise UnknownNameError("scene file extension", p.suffix, (".yaml", ".yml", ".json"))
+        try:
+            doc = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            where = getattr(exc, "problem_mark", None)
+            at = f" at line {where.line + 1}, column {where.column + 1}" if where is not None else ""
+            problem = getattr(exc, "problem", None) or type(exc).__name__
+            raise InvalidInputError(f"scene file {str(p)!r} is not valid YAML{at}: {problem}") from None
     return parse_scene(doc, base_dir=p.parent)
 
 

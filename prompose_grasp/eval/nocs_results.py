@@ -17,11 +17,16 @@ key                      shape           meaning
 `pred_scales`            (N, 3)          as `gt_scales`
 =======================  ==============  ============================================================
 
-Pickles execute code when loaded: load only result files you trust.
+A pickle can name any function for the loader to call, so result files are read with a restricted
+unpickler (`_read_pickle`): it rebuilds numpy arrays, dtypes and scalars and plain Python containers, and
+refuses every other global with an `InvalidInputError` naming it, before anything is called. A crafted
+file's payload never runs.
 """
 
 from __future__ import annotations
 
+import builtins
+import collections
 import logging
 import os
 import pickle
@@ -192,16 +197,81 @@ def _looks_like_result(obj: Any) -> bool:
     return isinstance(obj, Mapping) and any(k in obj for k in NOCS_RESULT_KEYS)
 
 
+def _latin1_encode(text: str, encoding: str = "latin1") -> bytes:
+    """`_codecs.encode` as protocol 0-2 pickles use it to store bytes (a numpy buffer): latin1 only."""
+    if not isinstance(text, str) or encoding not in ("latin1", "latin-1"):
+        raise pickle.UnpicklingError(f"_codecs.encode is allowed with latin1 only, got {encoding!r}")
+    return text.encode("latin1")
+
+
+def _allowed_globals() -> dict[tuple[str, str], Any]:
+    """The globals a NOCS / SPD result pickle may name: how numpy (1.x writes `numpy.core`, 2.x
+    `numpy._core`) rebuilds arrays, dtypes and scalars, and plain containers. Each name maps to this numpy's
+    own object, so a 1.x pickle loads under 2.x without touching the deprecated `numpy.core` alias."""
+    try:
+        from numpy._core import multiarray, numeric  # numpy >= 2
+    except ImportError:  # numpy 1.x
+        from numpy.core import multiarray, numeric  # type: ignore[no-redef]
+    allowed: dict[tuple[str, str], Any] = {
+        ("numpy", "ndarray"): np.ndarray,
+        ("numpy", "dtype"): np.dtype,
+        ("_codecs", "encode"): _latin1_encode,
+        ("collections", "OrderedDict"): collections.OrderedDict,
+    }
+    for core in ("numpy.core", "numpy._core"):
+        allowed[(f"{core}.multiarray", "_reconstruct")] = multiarray._reconstruct
+        allowed[(f"{core}.multiarray", "scalar")] = multiarray.scalar
+        # protocol 5 rebuilds contiguous arrays from a buffer
+        allowed[(f"{core}.numeric", "_frombuffer")] = numeric._frombuffer  # type: ignore[attr-defined]
+    for name in ("set", "frozenset", "complex", "slice"):
+        for module in ("builtins", "__builtin__"):  # __builtin__: Python 2
+            allowed[(module, name)] = getattr(builtins, name)
+    return allowed
+
+
+class _ResultUnpickler(pickle.Unpickler):
+    """Unpickles numpy arrays and plain containers only (`_allowed_globals`); any other global is refused
+    with an `InvalidInputError` naming it, before it is imported or called."""
+
+    def __init__(self, file: Any, path: Path, **kwargs: Any):
+        super().__init__(file, **kwargs)
+        self._path = path
+        self._allowed = _allowed_globals()
+
+    def find_class(self, module: str, name: str) -> Any:
+        try:
+            return self._allowed[(module, name)]
+        except KeyError:
+            raise InvalidInputError(
+                f"{self._path}: refused to load: the pickle names {module}.{name}, which a NOCS result "
+                "file does not need (only numpy arrays, dtypes, scalars and plain containers are loaded)"
+            ) from None
+
+
 def _read_pickle(path: Path) -> Any:
     try:
         try:
             with open(path, "rb") as f:
-                return pickle.load(f)
+                return _ResultUnpickler(f, path).load()
         except UnicodeDecodeError:
             # Pickles written by Python 2 store numpy buffers as str; latin1 maps their bytes one to one.
             with open(path, "rb") as f:
-                return pickle.load(f, encoding="latin1")
-    except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, IndexError, ValueError) as exc:
+                return _ResultUnpickler(f, path, encoding="latin1").load()
+    except (
+        pickle.UnpicklingError,
+        EOFError,
+        AttributeError,
+        ImportError,
+        IndexError,
+        KeyError,
+        TypeError,
+        ValueError,
+        MemoryError,
+        OverflowError,
+        RecursionError,
+    ) as exc:
+        if isinstance(exc, InvalidInputError):
+            raise
         raise InvalidInputError(f"{path}: not a readable pickle ({type(exc).__name__}: {exc})") from exc
 
 

@@ -33,7 +33,7 @@ def _positive_int(value: object, name: str) -> int:
 
 
 def _finite(value: object, name: str, positive: bool = False) -> float:
-    if isinstance(value, bool):
+    if isinstance(value, bool | str | bytes):  # float("60") would parse: a number given as text is refused
         raise InvalidInputError(f"{name} must be a finite number of pixels, got {value!r}")
     try:
         x = float(value)  # type: ignore[arg-type]

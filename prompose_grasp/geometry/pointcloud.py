@@ -15,11 +15,12 @@ from numpy.typing import ArrayLike
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry.camera import CameraIntrinsics
-from prompose_grasp.geometry.tolerances import MIN_VALID_DEPTH_M
+from prompose_grasp.geometry.tolerances import DEPTH_MEDIAN_RANGE_M, MIN_VALID_DEPTH_M
 
 __all__ = [
     "RobustDescriptor",
     "back_project",
+    "check_depth_units",
     "depth_to_point_map",
     "farthest_point_sampling",
     "masked_median_depth",
@@ -62,6 +63,51 @@ def valid_depth_mask(depth: ArrayLike) -> np.ndarray:
     D = np.asarray(depth)
     with np.errstate(invalid="ignore"):
         return np.isfinite(D) & (D > MIN_VALID_DEPTH_M)
+
+
+#: `check_depth_units` takes the median of about this many readings (an even stride over the image): the
+#: median of 20,000 samples is within a fraction of a percent of the whole image's, at 1/15 the cost at VGA.
+_MEDIAN_SAMPLES = 20_000
+
+
+def check_depth_units(depth: ArrayLike, name: str = "depth_m") -> None:
+    """Refuse a depth image that no RGB-D camera measures in metres.
+
+    The median of the image's readings (finite values farther than `MIN_VALID_DEPTH_M` from 0, of either
+    sign) must lie in `DEPTH_MEDIAN_RANGE_M` (5 cm - 10 m: the range of consumer RGB-D cameras). Single
+    readings are not judged: a negative or far one is "no reading" (`valid_depth_mask`), as sensor noise
+    makes them; a whole image out of range is a unit or sign mistake. An image without a single reading
+    passes (whether one may be used is the caller's call).
+
+    Raises:
+        InvalidInputError: the median is negative (a sign mistake) or outside the range; a median that is a
+            plausible distance in millimetres says so ("depth_m looks like millimetres: median 812; ...").
+    """
+    D = np.asarray(depth)
+    step = max(1, int(math.sqrt(D.size / _MEDIAN_SAMPLES)))
+    sample = D[::step, ::step] if D.ndim == 2 else D.ravel()[:: step * step]
+    with np.errstate(invalid="ignore"):
+        readings = sample[np.isfinite(sample) & (np.abs(sample) > MIN_VALID_DEPTH_M)]
+    if readings.size == 0:
+        return
+    median = float(np.median(readings))
+    lo, hi = DEPTH_MEDIAN_RANGE_M
+    if lo <= median <= hi:
+        return
+    if median < 0.0:
+        raise InvalidInputError(
+            f"{name} is mostly negative (median {median:.4g}); depth along the optical axis is >= 0 m (mark "
+            "pixels without a reading with 0 or NaN)"
+        )
+    if lo <= median / 1000.0 <= hi:
+        raise InvalidInputError(
+            f"{name} looks like millimetres: median {median:.0f}; pass metres "
+            f"({name.removesuffix('_m')}_mm / 1000; RGB-D cameras measure {lo:g} - {hi:g} m)"
+        )
+    raise InvalidInputError(
+        f"{name} median {median:.4g} m lies outside the {lo:g} - {hi:g} m that RGB-D cameras measure; "
+        "pass depth in metres"
+    )
 
 
 def back_project(depth: ArrayLike, intrinsics: CameraIntrinsics, mask: ArrayLike | None = None) -> np.ndarray:

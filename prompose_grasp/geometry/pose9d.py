@@ -48,8 +48,14 @@ class Pose9D:
 
     def __post_init__(self) -> None:
         R = as_rotation(self.R, "Pose9D.R")
-        t = np.asarray(self.t, dtype=np.float64)
-        size = np.asarray(self.size, dtype=np.float64)
+        try:
+            t = np.asarray(self.t, dtype=np.float64)
+            size = np.asarray(self.size, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InvalidInputError(
+                f"Pose9D.t and Pose9D.size must be finite (3,) vectors in metres, got {self.t!r:.40}, "
+                f"{self.size!r:.40}"
+            ) from None
         if t.shape != (3,) or not np.all(np.isfinite(t)):
             raise InvalidInputError(f"Pose9D.t must be a finite (3,) vector in metres, got {self.t!r}")
         if size.shape != (3,) or not np.all(np.isfinite(size)) or np.any(size <= 0.0):

@@ -16,7 +16,10 @@ from prompose_grasp.geometry.tolerances import ROTATION_ATOL, SMALL_ANGLE_RAD
 
 
 def _array(x: ArrayLike, shape: tuple[int, ...], name: str) -> np.ndarray:
-    a = np.asarray(x, dtype=np.float64)
+    try:
+        a = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{name} must be a numeric array of shape {shape}, got {x!r:.80}") from None
     if a.shape != shape:
         raise InvalidInputError(f"{name} must have shape {shape}, got {a.shape}")
     if not np.all(np.isfinite(a)):

@@ -15,6 +15,13 @@ SMALL_ANGLE_RAD = 1e-6
 #: distance [m] are treated as missing (no RGB-D sensor reports geometry closer than 1 mm).
 MIN_VALID_DEPTH_M = 1e-3
 
+#: The median of a depth image's readings must lie in this range [m] (`pointcloud.check_depth_units`).
+#: Consumer RGB-D cameras measure from ~0.1 m (RealSense D405: 7 cm; D435: ~0.2 m; Azure Kinect: 0.25 m) to
+#: at most ~10 m (D435 at its limit; Kinect v2 4.5 m, Azure Kinect 5.5 m). A whole image's median outside
+#: 5 cm - 10 m is not a scene any of them sees: it is a unit mistake, most often millimetres passed as metres
+#: (a table at 0.8 m reads 800).
+DEPTH_MEDIAN_RANGE_M = (0.05, 10.0)
+
 #: A point counts as inside a box when it is outside by at most this fraction of the larger box's longest
 #: side. Edge/face crossing points are computed with a few float64 roundings (relative error ~1e-16 each);
 #: 1e-9 keeps corners that lie exactly on a face while adding at most ~1e-9 relative error to an

@@ -71,6 +71,14 @@ _SAME_BRANCH_RAD = 1.0
 _BRANCH_STEP_M = 0.10
 
 
+def _config(config: object) -> GraspConfig:
+    if config is None:
+        return GraspConfig()
+    if not isinstance(config, GraspConfig):
+        raise InvalidInputError(f"config must be a GraspConfig or None, got {type(config).__name__}")
+    return config
+
+
 def _gripper(gripper) -> ParallelJawGeometry | SuctionCupGeometry:
     if isinstance(gripper, str):
         return get_gripper(gripper)
@@ -253,8 +261,14 @@ def build_scene(
     """The `CollisionScene` `plan_grasps` builds: points cropped to the arm's reach + 0.3 m, without the robot
     itself at `q_robot` (the configuration it had when the points were taken), the target's and the support's
     points, and the points already explained by obstacles."""
-    cfg = config or GraspConfig()
+    cfg = _config(config)
     grip = _gripper(gripper)
+    if not isinstance(robot, RobotModel):
+        raise InvalidInputError(f"robot must be a RobotModel (load_robot(...)), got {type(robot).__name__}")
+    if isinstance(obstacles, ObjectModel) or not isinstance(obstacles, Sequence | set | frozenset):
+        raise InvalidInputError(
+            f"obstacles must be a list of ObjectModel values (base frame), got {type(obstacles).__name__}"
+        )
     caps = [] if q_robot is None else robot_self_capsules(robot, grip, robot._q(q_robot, "q_robot"))
     return CollisionScene(
         obstacles,
@@ -302,13 +316,15 @@ def plan_grasps(
         InvalidInputError: malformed inputs.
     """
     t0 = time.perf_counter()
-    cfg = config or GraspConfig()
+    cfg = _config(config)
     grip = _gripper(gripper)
     if not isinstance(target, ObjectModel):
         raise InvalidInputError(f"target must be an ObjectModel in base, got {type(target).__name__}")
     if not isinstance(robot, RobotModel):
         raise InvalidInputError(f"robot must be a RobotModel (load_robot(...)), got {type(robot).__name__}")
     seed = np.zeros(6) if q_seed is None else robot._q(q_seed, "q_seed")
+    if scene is not None and not isinstance(scene, CollisionScene):
+        raise InvalidInputError(f"scene must be a CollisionScene (build_scene), got {type(scene).__name__}")
     if scene is None:
         scene = build_scene(target, robot, grip, obstacles, support, points_base, seed, cfg)
     support = scene.support

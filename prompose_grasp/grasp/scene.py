@@ -211,7 +211,12 @@ class CollisionScene:
         self.voxel_centres = np.zeros((0, 3))
         self.voxel_size_m = float(voxel_size_m)
         if points_base is not None:
-            P = np.asarray(points_base, dtype=np.float64)
+            try:
+                P = np.asarray(points_base, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise InvalidInputError(
+                    f"points_base must be an (N, 3) array of points [m], got {type(points_base).__name__}"
+                ) from None
             if P.ndim != 2 or P.shape[1] != 3:
                 raise InvalidInputError(f"points_base must have shape (N, 3) [m], got {P.shape}")
             P = P[np.all(np.isfinite(P), axis=1)]

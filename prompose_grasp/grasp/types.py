@@ -110,7 +110,9 @@ class ObjectModel:
                 raise InvalidInputError(
                     "ObjectModel.mesh must be a triangle mesh: finite (V, 3) vertices [m] and (F, 3) faces"
                 )
-        if self.mass_kg is not None and not (math.isfinite(self.mass_kg) and self.mass_kg > 0):
+        mass = self.mass_kg
+        number = not isinstance(mass, bool) and isinstance(mass, int | float)
+        if mass is not None and not (number and math.isfinite(mass) and mass > 0):
             raise InvalidInputError(f"ObjectModel.mass_kg must be finite and > 0 kg, got {self.mass_kg!r}")
         if self.kind not in ("object", "fixture"):
             raise InvalidInputError(f"ObjectModel.kind must be 'object' or 'fixture', got {self.kind!r}")

@@ -31,6 +31,7 @@ from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.pointcloud import outline_corrected_points, valid_depth_mask
 from prompose_grasp.perception.fit import FitConfig, SceneView, fit_pose
 from prompose_grasp.perception.grounding import Candidate, Grounder, GroundingResult, SupportPlane
+from prompose_grasp.perception.grounding.language import check_prompt
 from prompose_grasp.perception.grounding.plane import plane_under_object
 from prompose_grasp.perception.grounding.types import CandidateAttributes
 from prompose_grasp.perception.priors import PriorLibrary, ShapePrior
@@ -44,6 +45,15 @@ __all__ = ["Estimate", "EstimatorConfig", "ProMPose"]
 logger = logging.getLogger(__name__)
 
 
+def _count(value: object, name: str, minimum: int) -> int:
+    """`value` as an int >= `minimum`; a bool, a str or a float is refused (saying what is accepted)."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise InvalidInputError(f"{name} must be an integer >= {minimum}, got {value!r:.40}")
+    if value < minimum:
+        raise InvalidInputError(f"{name} must be an integer >= {minimum}, got {value}")
+    return int(value)
+
+
 @dataclass(frozen=True)
 class EstimatorConfig:
     """Settings of the estimator facade.
@@ -52,14 +62,25 @@ class EstimatorConfig:
         max_objects: how many grounding candidates `estimate_all` turns into estimates (best first).
         min_points: a candidate with fewer valid depth points than this is skipped: below ~50 points a
             9-DoF fit is underdetermined against sensor noise.
+        max_object_size_m: a fitted box with a side longer than this [m] is no object the cell can pick,
+            and is not returned (`estimate_all` leaves it out, `estimate` raises `ObjectNotFoundError` when
+            nothing else is left, a tracked frame counts as a lost track). 3 m: more than the diameter of
+            the workspace of the largest arm here (UR10e, 1.3 m reach); such a box comes from a mask that
+            spans the scene (the table, the floor, a whole-image mask), not from an object.
     """
 
     max_objects: int = 3
     min_points: int = 50
+    max_object_size_m: float = 3.0
 
     def __post_init__(self) -> None:
-        if self.max_objects < 1 or self.min_points < 4:
-            raise InvalidInputError("EstimatorConfig needs max_objects >= 1 and min_points >= 4")
+        object.__setattr__(self, "max_objects", _count(self.max_objects, "EstimatorConfig.max_objects", 1))
+        object.__setattr__(self, "min_points", _count(self.min_points, "EstimatorConfig.min_points", 4))
+        size = self.max_object_size_m
+        if isinstance(size, bool) or not isinstance(size, int | float) or not 0.0 < size < math.inf:
+            raise InvalidInputError(
+                f"EstimatorConfig.max_object_size_m must be a positive finite number [m], got {size!r}"
+            )
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,7 +91,10 @@ class Estimate:
         pose: the metric 9-DoF box in the camera frame.
         mask: (H, W) bool pixels of the object used for the fit.
         box_xyxy: (4,) int 2D box of the mask (x0, y0, x1, y1), inclusive pixel bounds.
-        score: grounding score of the object against the prompt (higher is better; comparable within a frame).
+        score: grounding score of the object against the prompt (higher is better; comparable within a frame;
+            1 for a mask handed in). Always a number: a tracked update after the first frame carries the
+            score of the grounding that started the track (or restarted it when it was lost), since it is
+            the same object followed, not grounded again.
         prior: the canonical shape prior (unit box) and where it came from.
         fit_loss: the L_geo value at the solution [m^2].
         timings_ms: per-stage wall time {"grounding", "prior", "pose", "total"} [ms].
@@ -131,9 +155,16 @@ _MAX_KEPT_PRIORS = 64
 
 
 def _check_prompt(prompt: str) -> str:
-    if not isinstance(prompt, str) or not prompt.strip():
-        raise InvalidInputError(f"prompt must be a non-empty string naming the object, got {prompt!r}")
-    return prompt.strip()
+    """The prompt NFKC-normalised and stripped; refused when blank or without a Latin letter."""
+    return check_prompt(prompt)
+
+
+def _check_prior(prior: object) -> ShapePrior | None:
+    if prior is not None and not isinstance(prior, ShapePrior):
+        raise InvalidInputError(
+            f"prior must be a ShapePrior (or None: generated from the prompt), got {type(prior).__name__}"
+        )
+    return prior
 
 
 def _check_frame(frame: RGBDFrame) -> RGBDFrame:
@@ -145,6 +176,22 @@ def _check_frame(frame: RGBDFrame) -> RGBDFrame:
     if not valid_depth_mask(frame.depth_m).any():
         raise InvalidInputError("the depth image has no valid reading (all zero, NaN or below 1 mm)")
     return frame
+
+
+def _size_text(pose: Pose9D, bound_m: float) -> str:
+    """A box's longest side against the size bound: "4.7 m long (more than max_object_size_m = 3 m)"."""
+    return (
+        f"{float(np.max(pose.size)):.3g} m long (more than EstimatorConfig.max_object_size_m = {bound_m:g} m)"
+    )
+
+
+def _too_large(dropped: list[Estimate], bound_m: float) -> str:
+    """The note an `ObjectNotFoundError` gets when candidates were left out as too large, else ""."""
+    if not dropped:
+        return ""
+    longest = max(dropped, key=lambda e: float(np.max(e.pose.size)))
+    size = _size_text(longest.pose, bound_m)
+    return f" ({len(dropped)} candidate(s) left out as too large to be an object: {size})"
 
 
 def plane_vector(plane: SupportPlane | None) -> np.ndarray | None:
@@ -232,9 +279,11 @@ class ProMPose:
         """
         if mask is not None:
             return self._estimate_masked(frame, prompt, mask, prior)
-        estimates = self.estimate_all(frame, prompt, prior=prior, max_objects=1, fit_contenders=True)
+        dropped: list[Estimate] = []
+        estimates = self._estimate_all(frame, prompt, prior, 1, 0.0, True, dropped)
         if not estimates or estimates[0].contenders == 0:
-            raise ObjectNotFoundError(f"no object in the frame matches {prompt!r}")
+            note = _too_large(dropped, self.config.max_object_size_m)
+            raise ObjectNotFoundError(f"no object in the frame matches {prompt!r}{note}")
         if estimates[0].contenders >= 2:
             raise AmbiguousObjectError(prompt, estimates[: estimates[0].contenders])
         return estimates[0]
@@ -255,12 +304,36 @@ class ProMPose:
 
         `min_score_ratio`: candidates whose grounding score is below this fraction of the best candidate's are
         not fitted (a caller that drops them anyway saves their fit, ~0.3 s each on 2 cores).
+        `max_objects`: an integer >= 1 (default `EstimatorConfig.max_objects`).
         `fit_contenders`: also fit every contender beyond `max_objects` (so that an ambiguous answer can show
         each of them).
+        A fitted box longer than `EstimatorConfig.max_object_size_m` is left out (no object a gripper picks).
+
+        Raises:
+            InvalidInputError: bad frame, prompt, prior, `max_objects` or `min_score_ratio`.
         """
+        if max_objects is not None:
+            max_objects = _count(max_objects, "max_objects", 1)
+        ratio = min_score_ratio
+        if isinstance(ratio, bool) or not isinstance(ratio, int | float | np.floating) or not 0 <= ratio <= 1:
+            raise InvalidInputError(f"min_score_ratio must be a number in [0, 1], got {ratio!r:.40}")
+        return self._estimate_all(frame, prompt, prior, max_objects, float(ratio), bool(fit_contenders), [])
+
+    def _estimate_all(
+        self,
+        frame: RGBDFrame,
+        prompt: str,
+        prior: ShapePrior | None,
+        max_objects: int | None,
+        min_score_ratio: float,
+        fit_contenders: bool,
+        dropped: list[Estimate],
+    ) -> list[Estimate]:
+        """`estimate_all` on checked arguments; the estimates left out as too large go to `dropped`."""
         t_total = time.perf_counter()
         prompt = _check_prompt(prompt)
         frame = _check_frame(frame)
+        prior = _check_prior(prior)
         t0 = time.perf_counter()
         grounding = self.grounder.ground(frame.rgb, frame.depth_m, frame.intrinsics, prompt)
         grounding_ms = _ms(t0)
@@ -279,17 +352,24 @@ class ProMPose:
             t0 = time.perf_counter()
             prior = prior or self._generate_prior(prompt, points, grounding)
             prior_ms = _ms(t0)
-            estimates.append(
-                self._fit(
-                    candidate,
-                    points,
-                    prior,
-                    grounding,
-                    {"grounding": grounding_ms, "prior": prior_ms},
-                    network_input=(frame, prompt),
-                    scene=SceneView(frame.depth_m, frame.intrinsics, candidate.mask),
-                )
+            est = self._fit(
+                candidate,
+                points,
+                prior,
+                grounding,
+                {"grounding": grounding_ms, "prior": prior_ms},
+                network_input=(frame, prompt),
+                scene=SceneView(frame.depth_m, frame.intrinsics, candidate.mask),
             )
+            if self.too_large(est.pose):
+                logger.info(
+                    "candidate of %r left out: %s",
+                    prompt,
+                    _size_text(est.pose, self.config.max_object_size_m),
+                )
+                dropped.append(est)
+                continue
+            estimates.append(est)
         for est in estimates:
             est.timings_ms["total"] = _ms(t_total)
         return estimates
@@ -303,14 +383,37 @@ class ProMPose:
     ) -> Iterator[Estimate]:
         """Estimates frame after frame, refined over a sliding window (see `perception.tracker`).
 
-        `mask`: (H, W) bool pixels of the object in the first frame (your own segmentation); the track then
-        starts from it instead of grounding the prompt (a lost track is grounded again).
+        `frames`: an iterable (list, generator) of `RGBDFrame`, in capture order; for a single frame use
+        `estimate`. `mask`: (H, W) bool pixels of the object in the first frame (your own segmentation); the
+        track then starts from it instead of grounding the prompt (a lost track is grounded again).
+
+        Raises:
+            InvalidInputError: at the call (not at the first frame) for a prompt, prior or `frames` that is
+            not an iterable of frames; for a frame of the sequence that is not an `RGBDFrame`, when it comes.
         """
+        if isinstance(frames, RGBDFrame):
+            raise InvalidInputError(
+                "track takes a sequence of RGBDFrame (a list or an iterator), got one RGBDFrame; pass "
+                "[frame], or use estimate(frame, prompt) for a single frame"
+            )
+        if isinstance(frames, str | bytes | np.ndarray) or not isinstance(frames, Iterable):
+            raise InvalidInputError(
+                f"frames must be an iterable (list, generator) of RGBDFrame, got {type(frames).__name__}"
+            )
+        return self._track(iter(frames), _check_prompt(prompt), _check_prior(prior), mask)
+
+    def _track(
+        self, frames: Iterator[RGBDFrame], prompt: str, prior: ShapePrior | None, mask: np.ndarray | None
+    ) -> Iterator[Estimate]:
         from prompose_grasp.perception.tracker import Tracker
 
-        tracker = Tracker(self, _check_prompt(prompt), prior=prior)
+        tracker = Tracker(self, prompt, prior=prior)
         for k, frame in enumerate(frames):
             yield tracker.update(_check_frame(frame), mask=mask if k == 0 else None)
+
+    def too_large(self, pose: Pose9D) -> bool:
+        """Whether a fitted box has a side longer than `EstimatorConfig.max_object_size_m`."""
+        return bool(np.max(pose.size) > self.config.max_object_size_m)
 
     # ------------------------------------------------------------------------------------------------------
 
@@ -320,7 +423,11 @@ class ProMPose:
         t_total = time.perf_counter()
         prompt = _check_prompt(prompt)
         frame = _check_frame(frame)
-        m = np.asarray(mask)
+        prior = _check_prior(prior)
+        try:
+            m = np.asarray(mask)
+        except (TypeError, ValueError):
+            m = np.asarray(None)  # refused below
         if m.shape != frame.depth_m.shape or m.dtype != np.bool_:
             raise InvalidInputError(
                 f"mask must be a {frame.depth_m.shape} bool image, got {m.dtype} {m.shape}"
@@ -348,6 +455,12 @@ class ProMPose:
             network_input=(frame, prompt),
             scene=SceneView(frame.depth_m, frame.intrinsics, m),
         )
+        if self.too_large(est.pose):
+            size = _size_text(est.pose, self.config.max_object_size_m)
+            raise ObjectNotFoundError(
+                f"the mask's fitted box is {size}: no object a gripper cell picks is that large; the mask "
+                "covers more than one object (the table, the floor, the whole image)"
+            )
         est.timings_ms["total"] = _ms(t_total)
         return est
 

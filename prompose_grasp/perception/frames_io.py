@@ -10,6 +10,7 @@ import numpy as np
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry.camera import CameraIntrinsics
+from prompose_grasp.geometry.pointcloud import check_depth_units
 from prompose_grasp.robot.interfaces import RGBDFrame
 
 __all__ = ["list_sequence", "load_rgbd"]
@@ -33,7 +34,9 @@ def load_rgbd(
         fx_fy_cx_cy: pinhole intrinsics [px] of both images.
     Raises:
         InvalidInputError: a file is missing or unreadable, the images disagree in size, the depth is not a
-            single-channel 16-bit image, or the intrinsics are not a camera.
+            single-channel 16-bit image, the scaled depth is no distance an RGB-D camera measures (a
+            millimetre PNG read with scale 1: the message names the scale), or the intrinsics are not a
+            camera.
     """
     scale = float(depth_scale_m)
     if not np.isfinite(scale) or scale <= 0:
@@ -52,9 +55,16 @@ def load_rgbd(
         )
     fx, fy, cx, cy = (float(v) for v in fx_fy_cx_cy)
     intrinsics = CameraIntrinsics(fx, fy, cx, cy, width=bgr.shape[1], height=bgr.shape[0])
+    depth_m = depth_raw.astype(np.float32) * np.float32(scale)
+    try:
+        check_depth_units(depth_m)
+    except InvalidInputError as exc:  # the scale is the likely culprit: say which one was used
+        raise InvalidInputError(
+            f"{depth_path}: {exc}; the depth scale was {scale:g} m per unit (a millimetre PNG takes 0.001)"
+        ) from None
     return RGBDFrame(
         rgb=np.ascontiguousarray(bgr[..., ::-1]),
-        depth_m=(depth_raw.astype(np.float32) * np.float32(scale)),
+        depth_m=depth_m,
         intrinsics=intrinsics,
         timestamp_s=float(timestamp_s),
     )

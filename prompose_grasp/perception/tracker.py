@@ -191,6 +191,8 @@ class Tracker:
         self._refit_view: np.ndarray | None = None  # unit object -> camera direction at the last re-fit
         # a re-fit without a turn (for an unexplained handle or an outgrown box) ran at this view
         self._unturned_refit_done = False
+        # the score of the grounding that (re)started the track, carried by its tracked updates
+        self._grounding_score = math.nan
         self.reinitialisations = 0
         self.window_restarts = 0
         self.refits = 0
@@ -201,6 +203,13 @@ class Tracker:
 
         `mask`: (H, W) bool pixels of the object in this frame (your own segmentation); when given, the track
         (re)starts from it instead of grounding the prompt.
+
+        The estimate of a (re)started track is the estimator's own (`ProMPose.estimate`). A tracked update
+        has the same fields with these meanings: `score` is the grounding score of the estimate that
+        (re)started the track, carried unchanged (1 when that was a mask handed in); `fit_loss` is the
+        warm fit's L_geo over the window's fused points; `coverage` and `probability` are NaN and
+        `contenders` is -1 (not judged: the frame was not grounded). A tracked box longer than
+        `EstimatorConfig.max_object_size_m` counts as a lost track.
         """
         t_start = time.perf_counter()
         estimate = None if (self._pose is None or mask is not None) else self._track(frame)
@@ -220,6 +229,7 @@ class Tracker:
         self._views.clear()
         est = self.estimator.estimate(frame, self.prompt, prior=self.prior, mask=mask)
         self.prior = est.prior
+        self._grounding_score = float(est.score)
         self._plane = est.support_plane
         self._in_base = frame.T_base_cam is not None
         self._refit_view = self._view_direction(frame, est.pose)
@@ -296,7 +306,7 @@ class Tracker:
                 self.refits_taken += 1
         if math.isnan(rms):
             rms = self._rms(current, fit.pose)
-        if not math.isfinite(fit.loss) or rms > cfg.max_rms_m:
+        if not math.isfinite(fit.loss) or rms > cfg.max_rms_m or self.estimator.too_large(fit.pose):
             return None
         self._plane = plane
         # a jump to another basin is not smoothed (half-way between two yaws is neither)
@@ -308,7 +318,7 @@ class Tracker:
             pose=pose,
             mask=mask,
             box_xyxy=np.array([xs.min(), ys.min(), xs.max(), ys.max()]),
-            score=float("nan"),
+            score=self._grounding_score,
             prior=self.prior,
             fit_loss=float(fit.loss),
             timings_ms={"grounding": grounding_ms, "prior": 0.0, "pose": pose_ms},

@@ -12,8 +12,10 @@ A small grammar does the structure; the sentence embedding does the vocabulary:
   belt": `PLACE_TARGETS`); otherwise it names an object to put things in or on ("the white bowl", "the tea
   box"), which the pipeline grounds in the image like the object to pick (`Command.target == "object"`).
 
-A command that names no object, or whose verb or target matches nothing well enough, raises
-`CommandNotUnderstood` with the parts that were understood and examples of what works.
+Commands are read in English: full-width forms are normalised first (NFKC) and accents dropped; a command
+with no word in Latin letters (Japanese, Chinese, Arabic, emoji) raises `CommandNotUnderstood` saying so. A
+command that names no object, or whose verb or target matches nothing well enough, raises it too, with the
+parts that were understood and examples of what works.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from prompose_grasp.errors import PromposeError
+from prompose_grasp.perception.grounding.language import fold_text
 
 __all__ = ["ACTIONS", "PLACE_TARGETS", "Command", "CommandNotUnderstood", "CommandParser"]
 
@@ -184,7 +187,16 @@ class CommandParser:
         """Parse one command; raises `CommandNotUnderstood` with what was understood and examples."""
         if not isinstance(text, str) or not text.strip():
             raise CommandNotUnderstood(self._explain(text, "the command is empty"))
-        clean = _POLITE.sub("", " ".join(re.sub(r"[^\w\s'-]", " ", text.lower()).split()))
+        folded = fold_text(text)  # full-width forms to ASCII, accents dropped
+        if not re.search(r"[A-Za-z]", folded):
+            raise CommandNotUnderstood(
+                self._explain(
+                    text,
+                    "it has no word in Latin letters; commands are read in English (the text encoder, "
+                    "all-MiniLM-L6-v2, understands English)",
+                )
+            )
+        clean = _POLITE.sub("", " ".join(re.sub(r"[^\w\s'-]", " ", folded.lower()).split()))
         parts = _PLACE_SPLIT.split(clean, maxsplit=1)
         head, target_phrase = parts[0], (parts[2] if len(parts) > 2 else "")
         into = len(parts) > 2 and parts[1] in _INTO

@@ -8,6 +8,7 @@ three devices are context managers: ``with arm: ...`` connects and always discon
 from __future__ import annotations
 
 import abc
+import math
 from dataclasses import dataclass
 from types import TracebackType
 
@@ -16,6 +17,7 @@ from numpy.typing import ArrayLike
 
 from prompose_grasp.errors import DeviceNotConnectedError, InvalidInputError
 from prompose_grasp.geometry.camera import CameraIntrinsics
+from prompose_grasp.geometry.pointcloud import check_depth_units
 from prompose_grasp.geometry.se3 import as_transform
 
 
@@ -69,16 +71,52 @@ class LinearCommand:
     accel_m_s2: float
 
 
+#: No pixel of a frame lies more than this far off the optical axis [deg], along u or v: pinhole (rectified)
+#: RGB-D cameras see ~60-90 deg across (RealSense D435 87 x 58 deg, D405 87 x 58, Azure Kinect 90 x 59);
+#: 80 deg each way (160 across) also admits any crop of such an image, whose principal point may lie outside
+#: it, and refuses focal lengths or principal points that no camera has (fx = 1 px on a 640-pixel image).
+_MAX_OFF_AXIS_DEG = 80.0
+_MAX_OFF_AXIS_TAN = math.tan(math.radians(_MAX_OFF_AXIS_DEG))
+
+
+def _timestamp(value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise InvalidInputError(
+            f"timestamp_s must be a finite number of seconds (int or float), got {value!r:.60}"
+        )
+    t = float(value)
+    if not np.isfinite(t):
+        raise InvalidInputError(f"timestamp_s must be a finite number of seconds, got {t}")
+    return t
+
+
+def _image(value: object, name: str, need: str) -> np.ndarray:
+    try:
+        return np.asarray(value)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{name} must be a numpy array {need}, got {type(value).__name__}") from None
+
+
 @dataclass(frozen=True)
 class RGBDFrame:
     """One RGB-D capture, depth registered to the colour image.
 
     Attributes:
         rgb: (H, W, 3) uint8.
-        depth_m: (H, W) float32 depth along the optical axis [m]; 0 or NaN where there is no reading.
-        intrinsics: pinhole intrinsics of both images (H = intrinsics.height, W = intrinsics.width).
-        timestamp_s: capture time [s] (device or sim clock).
+        depth_m: (H, W) float32 depth along the optical axis [m]; 0, NaN, inf or a negative value where
+            there is no reading. The median of the readings must lie in 5 cm - 10 m
+            (`DEPTH_MEDIAN_RANGE_M`: what consumer RGB-D cameras measure): a median in the hundreds or
+            thousands is refused as millimetres, a negative one as a sign mistake
+            (`geometry.pointcloud.check_depth_units`).
+        intrinsics: a `CameraIntrinsics` of both images (H = intrinsics.height, W = intrinsics.width) that
+            puts no pixel more than 80 deg off the optical axis along u or v (a pinhole camera, or a crop of
+            one). A (3, 3) matrix K is not taken as is: build the intrinsics with
+            `CameraIntrinsics.from_K(K, width, height)`.
+        timestamp_s: capture time [s] (device or sim clock), a finite number.
         T_base_cam: (4, 4) camera pose in the robot base frame (OpenCV camera axes) where known, else None.
+
+    Raises:
+        InvalidInputError: any of the above is not met (the message says what is accepted).
     """
 
     rgb: np.ndarray
@@ -88,16 +126,39 @@ class RGBDFrame:
     T_base_cam: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        h, w = self.intrinsics.height, self.intrinsics.width
-        rgb, depth = np.asarray(self.rgb), np.asarray(self.depth_m)
+        K = self.intrinsics
+        if not isinstance(K, CameraIntrinsics):
+            hint = (
+                "; for a (3, 3) matrix K use CameraIntrinsics.from_K(K, width, height)"
+                if np.shape(K) == (3, 3)
+                else ""
+            )
+            raise InvalidInputError(
+                "intrinsics must be a prompose_grasp.geometry.CameraIntrinsics(fx, fy, cx, cy, width, "
+                f"height), got {type(K).__name__}{hint}"
+            )
+        h, w = K.height, K.width
+        # how far off the optical axis the image's edges lie, as tan(angle), along u and along v
+        reach = max(max(K.cx + 0.5, w - 0.5 - K.cx) / K.fx, max(K.cy + 0.5, h - 0.5 - K.cy) / K.fy)
+        if reach > _MAX_OFF_AXIS_TAN:
+            raise InvalidInputError(
+                f"the intrinsics (fx, fy, cx, cy) = ({K.fx:g}, {K.fy:g}, {K.cx:g}, {K.cy:g}) px put the "
+                f"edge of the {w} x {h} image {math.degrees(math.atan(reach)):.1f} deg off the optical axis; "
+                f"a pinhole camera (or a crop of one) sees at most {_MAX_OFF_AXIS_DEG:g} deg off it: check "
+                "the focal lengths, the principal point (pixels) and the image size"
+            )
+        rgb = _image(self.rgb, "rgb", f"({h}, {w}, 3) uint8")
+        depth = _image(self.depth_m, "depth_m", f"({h}, {w}) float32 metres")
         if rgb.shape != (h, w, 3) or rgb.dtype != np.uint8:
             raise InvalidInputError(f"rgb must be ({h}, {w}, 3) uint8, got {rgb.shape} {rgb.dtype}")
         if depth.shape != (h, w) or depth.dtype != np.float32:
             raise InvalidInputError(
                 f"depth_m must be ({h}, {w}) float32 metres, got {depth.shape} {depth.dtype}"
             )
-        if not np.isfinite(self.timestamp_s):
-            raise InvalidInputError("timestamp_s must be finite")
+        check_depth_units(depth, "depth_m")
+        object.__setattr__(self, "rgb", rgb)
+        object.__setattr__(self, "depth_m", depth)
+        object.__setattr__(self, "timestamp_s", _timestamp(self.timestamp_s))
         if self.T_base_cam is not None:
             object.__setattr__(self, "T_base_cam", as_transform(self.T_base_cam, "T_base_cam"))
 

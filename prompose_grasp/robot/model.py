@@ -116,7 +116,11 @@ class RobotModel:
 
     # ------------------------------------------------------------------ forward kinematics
     def _q(self, q: ArrayLike, name: str = "q") -> np.ndarray:
-        q = np.asarray(q, dtype=np.float64)
+        try:
+            q = np.asarray(q, dtype=np.float64)
+        except (TypeError, ValueError):
+            msg = f"{name} must be a finite (6,) joint vector [rad], got {q!r:.50}"
+            raise InvalidInputError(msg) from None
         if q.shape != (6,) or not np.all(np.isfinite(q)):
             raise InvalidInputError(
                 f"{name} must be a finite (6,) joint vector [rad], got shape {q.shape}: {q}"

@@ -131,3 +131,63 @@ def test_cli_unknown_iou_mode_exits_2(tmp_path, capsys):
     _write(tmp_path / "results_0.pkl", _tagged(0))
     assert main(["eval-nocs", str(tmp_path), "--iou-mode", "obb"]) == 2
     assert "known: nocs, aligned, exact" in capsys.readouterr().err
+
+
+def _reduce_to(call, *args):
+    """An object that pickles as `call(*args)`: what a crafted result file holds."""
+
+    class Payload:
+        def __reduce__(self):
+            return (call, args)
+
+    return Payload()
+
+
+@pytest.mark.parametrize("protocol", [0, 2, 4, 5])
+def test_a_crafted_pickle_is_refused_and_its_payload_never_runs(tmp_path, protocol):
+    import os
+
+    marker = tmp_path / "payload_ran"
+    payloads = [
+        _reduce_to(os.system, f"touch {marker}"),
+        _reduce_to(open, str(marker), "w"),
+        _reduce_to(eval, f"open({str(marker)!r}, 'w')"),
+    ]
+    for k, payload in enumerate(payloads):
+        crafted = _tagged(0)
+        crafted["gt_scales"] = payload  # hidden inside an otherwise valid result dict
+        path = tmp_path / f"crafted_{k}.pkl"
+        path.write_bytes(pickle.dumps(crafted, protocol=protocol))
+        refused = r"refused to load: the pickle names \S+\.(system|open|eval),"
+        with pytest.raises(InvalidInputError, match=refused):
+            load_nocs_results([path])
+        assert not marker.exists()
+
+
+@pytest.mark.parametrize("protocol", [0, 1, 2, 3, 4, 5])
+def test_result_pickles_of_numpy_arrays_still_load(tmp_path, protocol):
+    r = _tagged(0)
+    r["pred_scores"] = np.array([np.float32(0.5)])  # numpy scalars and arrays of several dtypes
+    r["extra"] = {"scalar": np.float64(1.5), "ints": np.arange(3, dtype=np.int16), "set": {1, 2}, "c": 1j}
+    r["fortran"] = np.asfortranarray(np.ones((2, 3)))
+    path = _write_protocol(tmp_path / "r.pkl", r, protocol)
+    (loaded,) = load_nocs_results([path])
+    np.testing.assert_array_equal(loaded["gt_RTs"], r["gt_RTs"])
+    assert loaded["extra"]["scalar"] == 1.5 and loaded["extra"]["ints"].dtype == np.int16
+    np.testing.assert_array_equal(loaded["fortran"], r["fortran"])
+
+
+def test_numpy_1_module_names_load_under_numpy_2_and_back(tmp_path):
+    # numpy 1.x writes numpy.core.multiarray, numpy 2.x numpy._core.multiarray: either loads with either
+    r = _tagged(0)
+    data = pickle.dumps(r, protocol=2)
+    for old, new in ((b"numpy._core", b"numpy.core"), (b"numpy.core", b"numpy._core")):
+        path = tmp_path / "renamed.pkl"
+        path.write_bytes(data.replace(old, new))
+        (loaded,) = load_nocs_results([path])
+        np.testing.assert_array_equal(loaded["gt_RTs"], r["gt_RTs"])
+
+
+def _write_protocol(path, obj, protocol):
+    path.write_bytes(pickle.dumps(obj, protocol=protocol))
+    return path

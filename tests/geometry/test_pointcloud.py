@@ -302,3 +302,25 @@ def test_descriptor_validation():
     d = robust_descriptor(np.array([[0.0, 0.0, 1.0]]))  # a single point: zero spread, still a rotation
     np.testing.assert_allclose(d.extents, 0.0)
     assert np.linalg.det(d.axes) == pytest.approx(1.0, abs=ATOL)
+
+
+def test_depth_units_are_judged_on_the_median():
+    from prompose_grasp.geometry.pointcloud import check_depth_units
+
+    rng = np.random.default_rng(0)
+    depth = rng.uniform(0.5, 1.5, (48, 64)).astype(np.float32)
+    check_depth_units(depth)  # a table 0.5-1.5 m away
+    noisy = depth.copy()
+    noisy[:3, :3] = [[-0.2, np.nan, np.inf], [0.0, 60.0, -np.inf], [1e-4, 0.0, 0.0]]
+    check_depth_units(noisy)  # single readings out of range are "no reading", not a unit mistake
+    check_depth_units(np.zeros((48, 64), np.float32))  # no reading at all: the caller's call
+    with pytest.raises(
+        InvalidInputError, match=r"looks like millimetres: median \d+; pass metres \(depth_mm / 1000"
+    ):
+        check_depth_units(depth * 1000)
+    with pytest.raises(InvalidInputError, match="mostly negative"):
+        check_depth_units(-depth)
+    with pytest.raises(InvalidInputError, match=r"lies outside the 0\.05 - 10 m"):
+        check_depth_units(depth * 1e6)
+    with pytest.raises(InvalidInputError, match=r"lies outside the 0\.05 - 10 m"):
+        check_depth_units(depth * 0.01)  # 5-15 mm: nearer than any RGB-D camera measures

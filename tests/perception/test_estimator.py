@@ -19,6 +19,7 @@ from prompose_grasp import InvalidInputError, ObjectNotFoundError, ProMPose
 from prompose_grasp.cli import _overlay_label, main
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pose9d import Pose9D
+from prompose_grasp.perception.estimator import EstimatorConfig
 from prompose_grasp.perception.grounding import Grounder
 from prompose_grasp.perception.priors import PriorLibrary
 from prompose_grasp.perception.tracker import Tracker, TrackerConfig
@@ -105,6 +106,37 @@ def test_bad_input_is_refused_with_clear_errors(estimator, frame):
         estimator.estimate((frame.rgb, frame.depth_m), "the can")
 
 
+def test_implausible_input_is_refused_saying_what_is_accepted(estimator, frame):
+    # millimetres passed as metres: the unit mistake is named
+    with pytest.raises(InvalidInputError, match=r"looks like millimetres: median 8\d\d; pass metres"):
+        RGBDFrame(frame.rgb, frame.depth_m * 1000.0, frame.intrinsics, 0.0)
+    # a whole-image mask fits a box of metres: no object a gripper handles
+    whole = np.ones(frame.depth_m.shape, dtype=bool)
+    with pytest.raises(ObjectNotFoundError, match=r"m long \(more than EstimatorConfig.max_object_size_m"):
+        estimator.estimate(frame, "can", mask=whole)
+    # a candidate fitted larger than the bound is left out, and the error says so
+    small = ProMPose(estimator.grounder, estimator.priors, config=EstimatorConfig(max_object_size_m=0.05))
+    with pytest.raises(ObjectNotFoundError, match="left out as too large"):
+        small.estimate(frame, "the blue box")
+    assert small.estimate_all(frame, "the blue box") == []
+    for prompt in ("赤いマグカップ", "红色杯子", "كوب أحمر", "🥫"):
+        with pytest.raises(InvalidInputError, match=r"no word in Latin letters.*understand English"):
+            estimator.estimate(frame, prompt)
+    for n in ("3", 0, -5, True):
+        with pytest.raises(InvalidInputError, match="max_objects must be an integer >= 1"):
+            estimator.estimate_all(frame, "the can", max_objects=n)
+    with pytest.raises(InvalidInputError, match="sequence of RGBDFrame"):
+        estimator.track(frame, "the can")  # refused at the call, not at the first frame
+
+
+def test_a_full_width_prompt_reads_as_its_ascii_form(estimator, frame):
+    plain = estimator.estimate(frame, "the blue box")
+    wide = estimator.estimate(frame, "ｔｈｅ　ｂｌｕｅ　ｂｏｘ")  # NFKC: the same words
+    assert wide.prior is plain.prior
+    np.testing.assert_array_equal(wide.pose.t, plain.pose.t)
+    np.testing.assert_array_equal(wide.mask, plain.mask)
+
+
 @pytest.mark.parametrize(
     "bad",
     [{"outgrown_share": 0.0}, {"outgrown_share": 1.5}, {"redetect_share": -0.1}, {"outgrown_margin_m": 0.0}],
@@ -123,6 +155,9 @@ def test_track_reuses_the_prior_and_stays_on_the_object(estimator, frame, scene)
     estimates = list(estimator.track(frames, "the blue box"))
     assert [e.frame_index for e in estimates] == [0, 1]
     assert estimates[1].timings_ms["grounding"] == 0.0  # tracked, not re-grounded
+    # the tracked update carries the grounding score of the frame that started the track: a number, never NaN
+    assert math.isfinite(estimates[1].score) and estimates[1].score == estimates[0].score
+    assert math.isfinite(estimates[1].to_dict()["score"])
     assert estimates[1].prior is estimates[0].prior or estimates[1].prior.name == estimates[0].prior.name
     for e in estimates:
         assert e.pose.iou(scene.gt_poses["box"]) >= MIN_IOU

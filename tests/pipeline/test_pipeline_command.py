@@ -49,6 +49,10 @@ def test_known_commands(parser, text, action, obj, target, plural):
         ("pick up", "names no object"),
         ("put the mug", "needs a place"),
         ("put the mug on the", "names no place"),
+        ("赤いマグカップを取って", "no word in Latin letters"),
+        ("把红色杯子拿起来", "no word in Latin letters"),
+        ("التقط الكوب الأحمر", "no word in Latin letters"),
+        ("🥫➡️🗑️", "no word in Latin letters"),
     ],
 )
 def test_refusals_say_what_was_wrong_and_give_examples(parser, text, why):
@@ -69,3 +73,9 @@ def test_refusals_say_what_was_wrong_and_give_examples(parser, text, why):
 def test_target_phrase_and_preposition(parser, text, target_prompt, into):
     c = parser.parse(text)
     assert (c.target_prompt, c.into) == (target_prompt, into)
+
+
+def test_a_full_width_command_reads_as_its_ascii_form(parser):
+    wide = parser.parse("ｐｕｔ　ｔｈｅ　ｃａｎ　ｉｎ　ｔｈｅ　ｂｉｎ")  # NFKC: full-width letters and spaces
+    plain = parser.parse("put the can in the bin")
+    assert (wide.action, wide.object_prompt, wide.target) == (plain.action, plain.object_prompt, plain.target)

@@ -13,7 +13,7 @@ import numpy as np
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry.camera import CameraIntrinsics
-from prompose_grasp.geometry.pointcloud import depth_to_point_map, valid_depth_mask
+from prompose_grasp.geometry.pointcloud import check_depth_units, depth_to_point_map, valid_depth_mask
 from prompose_grasp.perception.grounding.confidence import ConfidenceModel, contenders, match_probabilities
 from prompose_grasp.perception.grounding.describe import (
     PALETTE,
@@ -28,7 +28,7 @@ from prompose_grasp.perception.grounding.describe import (
     taper,
     top_height_histogram,
 )
-from prompose_grasp.perception.grounding.language import ParsedPrompt, parse_prompt
+from prompose_grasp.perception.grounding.language import ParsedPrompt, check_prompt, parse_prompt
 from prompose_grasp.perception.grounding.plane import PlaneFrame, fit_support_plane
 from prompose_grasp.perception.grounding.score import (
     FAMILY_TEXTS,
@@ -64,7 +64,9 @@ def validate_frame(
     """Check a grounding call's inputs and return them. Raises `InvalidInputError` saying what is wrong.
 
     Accepted: rgb (H, W, 3) uint8; depth_m (H, W) float32 or float64 metres with 0 / NaN for no reading and
-    at least one valid reading; intrinsics a `CameraIntrinsics` for (H, W); prompt a non-blank str.
+    at least one valid reading, their median a distance an RGB-D camera measures (`check_depth_units`);
+    intrinsics a `CameraIntrinsics` for (H, W); prompt a str with a word in Latin letters
+    (`language.check_prompt`; returned NFKC-normalised).
     """
     if not isinstance(intrinsics, CameraIntrinsics):
         raise InvalidInputError(
@@ -72,10 +74,7 @@ def validate_frame(
             f"{type(intrinsics).__name__}; build one with CameraIntrinsics(fx, fy, cx, cy, width, height) "
             "or CameraIntrinsics.from_K(K, width, height)"
         )
-    if not isinstance(prompt, str):
-        raise InvalidInputError(f"prompt must be a str, got {type(prompt).__name__}")
-    if not prompt.strip():
-        raise InvalidInputError("prompt is empty; name the object to ground, e.g. 'the red mug'")
+    prompt = check_prompt(prompt)
     if not isinstance(rgb, np.ndarray):
         raise InvalidInputError(f"rgb must be a numpy array (H, W, 3) uint8, got {type(rgb).__name__}")
     if rgb.ndim != 3 or rgb.shape[2] != 3:
@@ -102,6 +101,7 @@ def validate_frame(
             "depth_m has no valid reading (every pixel is 0, negative, NaN or inf); check the depth stream "
             "and its scale (metres)"
         )
+    check_depth_units(depth_m, "depth_m")
     return rgb, depth_m, intrinsics, prompt
 
 

@@ -4,6 +4,10 @@ The parser is small and rule-based on purpose: the open-vocabulary part (what a 
 like) goes to the sentence embedding, while the words whose meaning is a measurement (colours, sizes,
 positions) are read here and checked against what the grounder measured.
 
+Prompts are read in English: full-width and other compatibility forms are first normalised (NFKC:
+"ｒｅｄ　ｍｕｇ" -> "red mug") and accents dropped ("café" -> "cafe"); a prompt with no Latin
+letter left (Japanese, Chinese, Arabic, emoji) is refused by `check_prompt` with that reason.
+
 Handled forms (case and punctuation are ignored):
 
 - command verbs and fillers in front are dropped: "pick up the red mug" -> "red mug"; a destination
@@ -20,9 +24,12 @@ Handled forms (case and punctuation are ignored):
 from __future__ import annotations
 
 import re
+import unicodedata
 from dataclasses import dataclass
 
-__all__ = ["COLOUR_WORDS", "GENERIC_NOUNS", "ParsedPrompt", "parse_prompt"]
+from prompose_grasp.errors import InvalidInputError
+
+__all__ = ["COLOUR_WORDS", "GENERIC_NOUNS", "ParsedPrompt", "check_prompt", "fold_text", "parse_prompt"]
 
 #: word -> palette name (`describe.PALETTE`)
 COLOUR_WORDS: dict[str, str] = {
@@ -132,8 +139,39 @@ class ParsedPrompt:
         return not self.noun or all(w in GENERIC_NOUNS for w in self.noun.split())
 
 
+def fold_text(text: str) -> str:
+    """`text` as the parser reads it: NFKC-normalised (full-width letters, digits and spaces become their
+    ASCII forms, ligatures their letters) with accents dropped (NFKD, combining marks removed)."""
+    text = unicodedata.normalize("NFKC", text)
+    decomposed = unicodedata.normalize("NFKD", text)
+    return "".join(c for c in decomposed if not unicodedata.combining(c))
+
+
+_LATIN_LETTER = re.compile(r"[A-Za-z]")
+
+
+def check_prompt(prompt: object, what: str = "prompt") -> str:
+    """A prompt the grounder can read, NFKC-normalised and stripped ("ｒｅｄ ｍｕｇ" -> "red mug").
+
+    Raises:
+        InvalidInputError: not a str, blank, or without a Latin letter once folded (`fold_text`): the
+            parser and the text encoder (all-MiniLM-L6-v2, trained on English) read English words only.
+    """
+    if not isinstance(prompt, str):
+        raise InvalidInputError(f"{what} must be a str naming the object, got {type(prompt).__name__}")
+    text = unicodedata.normalize("NFKC", prompt).strip()
+    if not text:
+        raise InvalidInputError(f"{what} is empty; name the object, e.g. 'the red mug'")
+    if not _LATIN_LETTER.search(fold_text(text)):
+        raise InvalidInputError(
+            f"{what} {prompt!r} has no word in Latin letters; the text encoder (all-MiniLM-L6-v2) and the "
+            "prompt parser understand English: name the object in English, e.g. 'the red mug'"
+        )
+    return text
+
+
 def _clean(text: str) -> str:
-    text = text.lower().replace("-", " ")
+    text = fold_text(text).lower().replace("-", " ")
     text = re.sub(r"[^a-z0-9\s]", " ", text)
     return re.sub(r"\s+", " ", text).strip()
 
@@ -179,8 +217,12 @@ def _parse_phrase(text: str, allow_relation: bool) -> ParsedPrompt:
 
 
 def parse_prompt(prompt: str) -> ParsedPrompt:
-    """Parse a (non-blank) prompt; see the module docstring for the handled forms."""
-    text = _clean(prompt)
+    """Parse a prompt; see the module docstring for the handled forms.
+
+    Raises:
+        InvalidInputError: the prompt is blank or has no Latin letter (`check_prompt`).
+    """
+    text = _clean(check_prompt(prompt))
     is_destination_command = bool(_DESTINATION_VERBS.match(text))
     for _ in range(2):  # "please pick up" + "the"
         text = _LEADING.sub("", text)
