@@ -210,6 +210,60 @@ def robot_self_capsules(
     return [*robot.capsules_in_base(q), ("gripper", T_flange[:3, 3], tip, radius)]
 
 
+#: Along its ray a depth reading is off by the sensor's noise: a D400-class stereo camera's is ~1 % of the
+#: range rms, so among the ~10^4 pixels of an arm in view a few read 3-4 cm nearer than its surface. A reading
+#: inside the arm's silhouette no nearer than its front less this share of the range is the arm.
+_RAY_BAND_FRACTION = 0.03
+#: The capsules' axes are sampled this finely for their silhouettes [m] (a union of spheres is the capsule).
+_SILHOUETTE_STEP_M = 0.01
+
+
+def _arm_silhouette(
+    shape: tuple[int, int],
+    intrinsics: CameraIntrinsics,
+    caps_cam: Sequence[tuple[np.ndarray, float]],
+    margin_m: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) ranges [m] along each pixel's ray where it enters the capsules (grown by `margin_m`) first and
+    leaves them again, inf where it misses them all: each capsule as spheres along its axis
+    (`_SILHOUETTE_STEP_M` apart; a union of spheres is the capsule), each ray's entry and exit exact per
+    sphere, overlapping spans merged."""
+    H, W = shape
+    front = np.full(shape, np.inf)
+    back = np.full(shape, np.inf)
+    for (p0, p1), radius in caps_cam:
+        R = radius + margin_m
+        n = max(2, int(np.ceil(np.linalg.norm(p1 - p0) / _SILHOUETTE_STEP_M)) + 1)
+        for q in np.linspace(p0, p1, n):
+            if q[2] <= R:  # the sphere reaches behind the camera: no silhouette to draw
+                continue
+            u = intrinsics.fx * q[0] / q[2] + intrinsics.cx
+            v = intrinsics.fy * q[1] / q[2] + intrinsics.cy
+            rad = intrinsics.fx * R / np.sqrt(q[2] ** 2 - R**2) + 1.0  # the projected radius, a pixel more
+            x0, x1 = max(0, int(u - rad)), min(W, int(u + rad) + 2)
+            y0, y1 = max(0, int(v - rad)), min(H, int(v + rad) + 2)
+            if x0 >= x1 or y0 >= y1:
+                continue
+            yy, xx = np.mgrid[y0:y1, x0:x1]
+            d = np.stack([(xx - intrinsics.cx) / intrinsics.fx, (yy - intrinsics.cy) / intrinsics.fy,
+                          np.ones(xx.shape)], axis=-1)  # fmt: skip
+            d /= np.linalg.norm(d, axis=-1, keepdims=True)
+            along = d @ q
+            half = np.sqrt(np.maximum(R**2 - (q @ q - along**2), 0.0))
+            hit = R**2 >= q @ q - along**2
+            entry, exit_ = along - half, along + half
+            f, b = front[y0:y1, x0:x1], back[y0:y1, x0:x1]
+            nearer = hit & (entry < f)
+            joins = hit & ~nearer & (entry <= b)  # overlaps the span already there: one surface
+            # a nearer span replaces the one there, or extends it when the two overlap
+            overlaps = nearer & (exit_ >= f)
+            b[nearer & ~overlaps] = exit_[nearer & ~overlaps]
+            b[overlaps] = np.maximum(b[overlaps], exit_[overlaps])
+            f[nearer] = entry[nearer]
+            b[joins] = np.maximum(b[joins], exit_[joins])
+    return front, back
+
+
 def robot_pixel_mask(
     depth_m: np.ndarray,
     intrinsics: CameraIntrinsics,
@@ -217,12 +271,17 @@ def robot_pixel_mask(
     capsules: Sequence[tuple[str, np.ndarray, np.ndarray, float]],
     margin_m: float = 0.03,
 ) -> np.ndarray:
-    """(H, W) bool: the pixels whose depth reading lies on the robot itself, i.e. within `margin_m` of one of
-    its `capsules` (name, p0, p1, radius) in `base` (`robot_self_capsules` at the joints of the capture).
+    """(H, W) bool: the pixels whose depth reading lies on the robot itself (`robot_self_capsules` at the
+    joints of the capture, (name, p0, p1, radius) in `base`): within `margin_m` of a capsule, or, for the
+    arm's links, on a ray through them (grown by `margin_m`) between where it enters and leaves them, widened
+    by `_RAY_BAND_FRACTION` of the range (noise moves a reading along its ray, off the surface by more than
+    any fixed margin on a far arm; the table seen past the arm's edge lies farther). The gripper's capsule
+    has no such band: an object held in the jaws lies in front of it.
 
     Robot self-filtering: a camera that sees the arm (a fixed camera with the arm parked in view) would
     otherwise offer a link as an object to ground ("a large black box-shaped object", 0.49 m tall, next to
-    the tea box). Pixels without a reading are never on the robot.
+    the tea box), and a reading off the arm would stand in the collision scene as an obstacle. Pixels without
+    a reading are never on the robot.
     """
     D = np.asarray(depth_m)
     T = as_transform(T_base_cam, "T_base_cam")
@@ -245,6 +304,14 @@ def robot_pixel_mask(
         hit |= segment_distance(Pn, p0, p1) <= radius + float(margin_m)
     on_robot = near[hit]
     out.ravel()[idx[on_robot]] = True
+    arm = [c for c, (name, *_) in zip(caps, capsules) if name != "gripper"]
+    if arm:
+        front, back = _arm_silhouette(D.shape, intrinsics, arm, float(margin_m))
+        front, back = front.ravel()[idx], back.ravel()[idx]
+        rng = np.linalg.norm(P, axis=1)
+        band = np.maximum(float(margin_m), _RAY_BAND_FRACTION * rng)
+        on_ray = np.isfinite(front) & (rng >= front - band) & (rng <= back + band)
+        out.ravel()[idx[on_ray]] = True
     return out
 
 
