@@ -15,13 +15,15 @@ acceleration argument of a joint or linear move to the cap and logs it; trajecto
 
 Workspace along joint-space lines. With `fk_tcp` set, a joint move and every trajectory segment are checked
 along the straight joint-space line they follow (moveJ and servoJ interpolate linearly in joint space), not
-only at their ends: the line is sampled so that no joint moves more than `workspace_step_rad` between samples.
-A joint step dq moves the TCP by at most sum_j |dq_j| r_j, with r_j the TCP's distance from joint j's axis,
-bounded by the link lengths beyond joint j plus the tool: sum_j r_j <= 4.3 m for a UR5e with a 15 cm tool
-(5.3 m for a UR10e or UR16e). Every point of the line is within half a step of a sample on every joint, so
-with the default 0.005 rad the TCP can leave the box between samples by at most 0.0025 * 4.3 = 1.1 cm
-(1.3 cm): set the box that much inside what must not be crossed. A linear move's TCP line needs no sampling:
-the box is convex, and the line ends inside it.
+only at their ends: the line is sampled, both ends included, so that no joint moves more than
+`workspace_step_rad` between samples. (A move from a position outside the box is refused: the arm has left
+the box already, and the first stretch of the line is outside too.) A joint step dq moves the TCP by at most
+sum_j |dq_j| r_j, r_j the TCP's distance from joint j's axis, which the link lengths beyond joint j plus the
+tool bound: sum_j r_j <= 4.3 m for a UR5e with a 15 cm tool (5.5 m for a UR10e, the longest arm). Every
+point of the line is within half a step of a sample on every joint, so with the default 0.005 rad the TCP
+leaves the box between samples by at most 0.0025 rad * 4.3 m = 1.1 cm (1.4 cm on a UR10e): draw the box that
+much inside what must not be crossed. A linear move needs no sampling: its TCP line runs from where the arm
+is (inside the box, where the last checked command left it) to a target inside it, and the box is convex.
 """
 
 from __future__ import annotations
@@ -204,8 +206,8 @@ class CommandValidator:
             self._check_workspace_point(T[:3, 3], what)
 
     def _check_workspace_line(self, q_from: np.ndarray, q_to: np.ndarray, what: str) -> None:
-        """The TCP at samples of the joint line q_from -> q_to after q_from, q_to included, no joint moving
-        more than `workspace_step_rad` between neighbours."""
+        """The TCP at samples of the joint line q_from -> q_to after q_from (which the caller checks), q_to
+        included, no joint moving more than `workspace_step_rad` between neighbours."""
         if self.fk_tcp is None:
             return
         n = max(1, math.ceil(float(np.max(np.abs(q_to - q_from))) / self.config.workspace_step_rad))
@@ -244,7 +246,9 @@ class CommandValidator:
         self._check_configuration(q, current, what)
         speed = self._cap(speed, float(np.min(self._vmax)), "joint speed", "rad/s", what)
         accel = self._cap(accel, self.config.max_joint_accel_rad_s2, "joint acceleration", "rad/s^2", what)
-        self._check_workspace_line(current, q, what)
+        if self.fk_tcp is not None:
+            self._check_workspace_q(current, f"{what} from the current position")
+            self._check_workspace_line(current, q, what)
         return JointCommand(q=q, speed_rad_s=speed, accel_rad_s2=accel)
 
     def _check_configuration(self, q: np.ndarray, current: np.ndarray, what: str) -> None:
@@ -344,7 +348,7 @@ class CommandValidator:
         else:
             P, t = np.vstack([current, Q_way]), np.concatenate([[0.0], t_way])
         offset = len(P) - len(Q_way)  # node k is waypoint k - offset; node 0 the current position if 1
-        name = ["the start" if k < offset else f"waypoint {k - offset}" for k in range(len(P))]
+        name = ["the current position" if k < offset else f"waypoint {k - offset}" for k in range(len(P))]
         for k in np.flatnonzero(np.any((Q_way < self._lower) | (Q_way > self._upper), axis=1))[:1]:
             self._check_limits(Q_way[k], f"{what} waypoint {k}")
         for k in np.flatnonzero(
@@ -371,8 +375,7 @@ class CommandValidator:
                     f"{where.get(k, f'around {name[k]}')} (t = {t[k]:.6g} s); the cap is "
                     f"{cfg.max_joint_accel_rad_s2:.6g} rad/s^2"
                 )
-        if offset == 0:
-            self._check_workspace_q(P[0], f"{what} waypoint 0")
+        self._check_workspace_q(P[0], f"{what} {name[0]}")
         for k in range(1, len(P)):
             self._check_workspace_line(P[k - 1], P[k], f"{what} {name[k]}")
         return checked
