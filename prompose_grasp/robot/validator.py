@@ -47,6 +47,11 @@ logger = logging.getLogger(__name__)
 #: the second difference over 0.1 ms steps turns into ~1e-7 rad/s^2 (1e-6 of a 0.1 rad/s^2 cap).
 RATE_ROUNDING = 1e-6
 
+#: A `move_linear` target is a rigid transform when det R > 0 and neither max |R^T R - I| nor the largest
+#: difference of its last row from [0, 0, 0, 1] exceeds this: poses composed in float64 are rigid to ~1e-15,
+#: one rounded to float32 to ~1e-7.
+RIGID_TOL = 1e-6
+
 
 def _finite_tuple(values: object, n: int, name: str, unit: str) -> tuple[float, ...]:
     arr = real_array(values, f"ValidatorConfig.{name} {unit}", (n,))
@@ -270,8 +275,9 @@ class CommandValidator:
         return q
 
     def validate_linear_move(self, T_base_tcp: object, speed: object, accel: object) -> LinearCommand:
-        """Check a `move_linear`: the target pose (4, 4) finite, a rigid transform, its position inside the
-        workspace box; speed [m/s] and accel [m/s^2] finite, > 0 and within the caps."""
+        """Check a `move_linear`: the target pose (4, 4) finite, a rigid transform (`RIGID_TOL`), its position
+        inside the workspace box (faces included); speed [m/s] and accel [m/s^2] finite, > 0 and within the
+        caps. Returns the `LinearCommand` to send."""
         what = "move_linear"
         T = real_array(T_base_tcp, f"{what}: T_base_tcp", (4, 4))
         real_number(speed, f"{what}: TCP speed [m/s]")
@@ -281,12 +287,14 @@ class CommandValidator:
                 f"{what}: T_base_tcp must be a finite (4, 4) transform (it holds NaN/inf)"
             )
         R = T[:3, :3]
-        if (
-            not np.allclose(R.T @ R, np.eye(3), atol=1e-6)
-            or np.linalg.det(R) < 0
-            or not np.allclose(T[3], [0, 0, 0, 1])
-        ):
-            raise UnsafeCommandError(f"{what}: T_base_tcp is not a rigid transform")
+        off_rotation = float(np.max(np.abs(R.T @ R - np.eye(3))))
+        off_row = float(np.max(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0])))
+        if max(off_rotation, off_row) > RIGID_TOL or np.linalg.det(R) <= 0:
+            raise UnsafeCommandError(
+                f"{what}: T_base_tcp is not a rigid transform (max |R^T R - I| = {off_rotation:.3g}, "
+                f"det R = {np.linalg.det(R):.6g}, last row off [0, 0, 0, 1] by {off_row:.3g}; "
+                f"tolerance {RIGID_TOL:g})"
+            )
         self._check_workspace_point(T[:3, 3], what)
         speed = self._cap(speed, self.config.max_tcp_speed_m_s, "TCP speed", "m/s", what)
         accel = self._cap(accel, self.config.max_tcp_accel_m_s2, "TCP acceleration", "m/s^2", what)
