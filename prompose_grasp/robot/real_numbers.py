@@ -15,6 +15,8 @@ Whether the values are finite and within limits is for the caller to check (an u
 
 from __future__ import annotations
 
+from typing import TypeGuard
+
 import numpy as np
 
 from prompose_grasp.errors import InvalidInputError
@@ -38,7 +40,7 @@ def _describe(value: object) -> str:
     return f"{type(value).__name__} {text if len(text) <= 60 else text[:57] + '...'}"
 
 
-def _is_real_scalar(value: object) -> bool:
+def _is_real_scalar(value: object) -> TypeGuard[int | float | np.integer | np.floating]:
     return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
         value, (bool, np.bool_)
     )

@@ -229,9 +229,9 @@ def test_malformed_speeds_are_invalid_input_naming_what_is_accepted(validator, b
     with pytest.raises(InvalidInputError, match="must be a real number"):
         validator.validate_joint_move(HOME_Q, 1.0, bad, HOME_Q)
     T = ROBOT.fk_tcp(HOME_Q)
-    with pytest.raises(InvalidInputError, match="TCP speed .* must be a real number"):
+    with pytest.raises(InvalidInputError, match=r"TCP speed .* must be a real number"):
         validator.validate_linear_move(T, bad, 1.0)
-    with pytest.raises(InvalidInputError, match="TCP acceleration .* must be a real number"):
+    with pytest.raises(InvalidInputError, match=r"TCP acceleration .* must be a real number"):
         validator.validate_linear_move(T, 0.1, bad)
 
 
