@@ -383,7 +383,7 @@ class CommandValidator:
                     f"{where.get(k, f'around {name[k]}')} (t = {t[k]:.6g} s); the cap is "
                     f"{cfg.max_joint_accel_rad_s2:.6g} rad/s^2"
                 )
-        self._check_workspace_q(P[0], f"{what} {name[0]}")
+        self._check_workspace_q(P[0], f"{what} {'from ' if offset else ''}{name[0]}")
         for k in range(1, len(P)):
             self._check_workspace_line(P[k - 1], P[k], f"{what} {name[k]}")
         return checked
