@@ -19,6 +19,7 @@ from prompose_grasp.errors import DeviceNotConnectedError, InvalidInputError
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import check_depth_units
 from prompose_grasp.geometry.se3 import as_transform
+from prompose_grasp.robot.real_numbers import real_array
 
 
 @dataclass(frozen=True)
@@ -28,20 +29,29 @@ class JointTrajectory:
     Attributes:
         t_s: (N,) float64 strictly increasing times from the start of the motion [s]; t_s[0] >= 0.
         q: (N, 6) float64 joint positions [rad].
+
+    Both are given as numpy arrays of real floats or ints or as (nested) lists of them, and stored as
+    float64 copies; bools, complex numbers and strings are refused (`robot.real_numbers`).
     """
 
     t_s: np.ndarray
     q: np.ndarray
 
     def __post_init__(self) -> None:
-        t = np.asarray(self.t_s, dtype=np.float64)
-        q = np.asarray(self.q, dtype=np.float64)
+        t = real_array(self.t_s, "JointTrajectory.t_s [s]")
+        q = real_array(self.q, "JointTrajectory.q [rad]")
         if t.ndim != 1 or q.shape != (t.shape[0], 6) or t.shape[0] < 1:
             raise InvalidInputError(
                 f"JointTrajectory needs t_s (N,) and q (N, 6), N >= 1; got {t.shape}, {q.shape}"
             )
-        if not np.all(np.isfinite(t)) or t[0] < 0 or np.any(np.diff(t) <= 0):
+        if not np.all(np.isfinite(t)) or t[0] < 0:
             raise InvalidInputError("JointTrajectory.t_s must be finite, >= 0 and strictly increasing [s]")
+        for k in np.flatnonzero(np.diff(t) <= 0)[:1]:
+            jump = float(np.max(np.abs(q[k + 1] - q[k])))
+            raise InvalidInputError(
+                "JointTrajectory.t_s must be finite, >= 0 and strictly increasing [s]; waypoints "
+                f"{k} and {k + 1} are at t = {t[k]:.6g} and {t[k + 1]:.6g} s ({jump:.6g} rad apart)"
+            )
         object.__setattr__(self, "t_s", t)
         object.__setattr__(self, "q", q)
 
