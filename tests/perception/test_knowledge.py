@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -162,6 +163,23 @@ def test_knowledge_terms_prefer_the_size_colour_and_shape_of_the_named_object(kn
     # a colour word in the prompt is the user's, and the typical colours then say nothing
     told = knowledge_terms(parse_prompt("the red mustard bottle"), feats, match, ScoringWeights())
     assert told[0] == pytest.approx(told[1])
+
+
+def test_a_long_thin_kind_standing_up_reads_as_long_and_thin(knowledge):
+    # A flashlight stands on its end (its footprint reads cylindrical, 3 x 3 cm under 14 cm) or lies (its
+    # footprint reads elongated): both are the long thin kind the table knows; a short can of the same
+    # family is not.
+    match = knowledge.lookup("flashlight")
+    assert "elongated" in match.shapes
+    grey = np.zeros(len(PALETTE))
+    feats = _feats(
+        [[0.03, 0.03, 0.14], [0.14, 0.03, 0.03], [0.07, 0.07, 0.08]],
+        ["cylinder", "elongated", "cylinder"],
+        [grey, grey, grey],
+    )
+    w = dataclasses.replace(ScoringWeights(), knowledge_size=0.0, knowledge_colour=0.0)
+    terms = knowledge_terms(parse_prompt("the flashlight"), feats, match, w)
+    assert terms[0] == pytest.approx(terms[1]) and terms[0] > terms[2]
 
 
 def test_shape_fit_rows_cover_every_coarse_shape_and_stay_in_range():

@@ -219,6 +219,17 @@ SHAPE_FIT: dict[str, dict[str, float]] = {
 }  # fmt: skip
 
 
+#: A candidate is long and thin when its largest extent is this many times the next (`describe`'s rule 1 for
+#: a footprint, here orientation-free).
+ELONGATED_RATIO = 2.5
+
+
+def _long_thin(extents_m: np.ndarray) -> np.ndarray:
+    """(K,) bool: the largest of each candidate's (K, 3) extents is `ELONGATED_RATIO` times the next."""
+    e = np.sort(np.asarray(extents_m, dtype=np.float64), axis=1)[:, ::-1]
+    return e[:, 0] >= ELONGATED_RATIO * e[:, 1]
+
+
 def knowledge_size_term(
     extents_m: np.ndarray, lo_m: np.ndarray, hi_m: np.ndarray, w: ScoringWeights
 ) -> np.ndarray:
@@ -251,6 +262,10 @@ def knowledge_terms(
         full = np.clip(share / w.knowledge_colour_full_share, 0.0, 1.0)
         total += w.knowledge_colour * ((1.0 + w.knowledge_colour_miss) * full - w.knowledge_colour_miss)
     fits = np.array([max(SHAPE_FIT[s][f] for s in match.shapes) for f in feats.families])
+    if "elongated" in match.shapes:
+        # a long thin kind stands as well as it lies (a flashlight, a toothpaste tube on its cap): its
+        # extents tell it whatever the family its footprint reads (a standing one reads cylindrical)
+        fits = np.where(_long_thin(feats.extents_m), 1.0, fits)
     total += w.knowledge_shape * fits
     return match.weight * total
 
@@ -345,9 +360,12 @@ def _base_terms(
 
         alternatives = feats.alternative_families or (None,) * len(feats.families)
         # near the box/cylinder threshold both readings count half (module docstring)
-        total += w.shape * np.array(
+        fits = np.array(
             [fit(f) if g is None else 0.5 * (fit(f) + fit(g)) for f, g in zip(feats.families, alternatives)]
         )
+        # the family reads the footprint: a long thin thing standing up reads cylindrical, and is long and
+        # thin all the same
+        total += w.shape * np.where(_long_thin(feats.extents_m), np.maximum(fits, fit("elongated")), fits)
     if knowledge is not None:
         total += knowledge_terms(parsed, feats, knowledge, w)
     # a family's typical size is a coarser guess than the range of a product the table names more closely
