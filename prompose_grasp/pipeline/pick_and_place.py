@@ -1348,12 +1348,13 @@ class PickAndPlace:
         T_base_cam: np.ndarray,
     ) -> str | None:
         """Why the lifted object is not off the support, or None: the candidate that moved most among those
-        under the tcp (centre within half the object's largest extent plus `_HELD_XY_SLACK_M`, across) rose
-        less than half the lift, and some of its seen points (`_RESTING_SHARE` of them, at least
-        `_RESTING_MIN_POINTS`: a tip is a small part of a mask) lie within `_RESTING_M` of the support. It
-        hangs from the jaws with a part still resting on the support: a pan held by the far side of its rim,
-        its handle on the table, tilts and drags instead of rising. (A bowl held by its rim hangs tilted too
-        and its centre rises about half the lift, but all of it is in the air.)"""
+        under the tcp (centre within half the object's largest extent plus `_HELD_XY_SLACK_M`, across) that
+        rose by half `moved_min_m` or more rose less than half the lift, and some of its seen points
+        (`_RESTING_SHARE` of them, at least `_RESTING_MIN_POINTS`: a tip is a small part of a mask) lie within
+        `_RESTING_M` of the support. It hangs from the jaws with a part still resting on the support: a pan
+        held by the far side of its rim, its handle on the table, tilts and drags instead of rising. (A bowl
+        held by its rim hangs tilted too and its centre rises about half the lift, but all of it is in the
+        air.)"""
         support = obs.support
         if support is None or not ests:
             return None
@@ -1367,6 +1368,9 @@ class PickAndPlace:
             for k, p in enumerate(e.pose.transformed(T_base_cam) for e in ests)
             if _across(p.t, tcp) <= reach
         ]
+        # the held one rose: an object standing under the hand (a neighbour of a tall bottle) re-estimates
+        # within about a centimetre or two of where it stood, up or down
+        under = [u for u in under if u[2] >= 0.5 * self.config.moved_min_m]
         if not under or lift <= 0.0:
             return None
         _, k, rise = max(under)
