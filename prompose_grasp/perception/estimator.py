@@ -483,8 +483,13 @@ class ProMPose:
         kept = self._library_priors.get(prompt)
         if kept is not None:
             return kept
-        up = None if grounding.support_plane is None else grounding.support_plane.normal_cam
-        prior = self.priors.generate(prompt, observation_points=points, up=up)
+        plane = grounding.support_plane
+        if plane is None:
+            prior = self.priors.generate(prompt, observation_points=points)
+        else:  # a superquadric fallback stands on the support, as the object does
+            prior = self.priors.generate(
+                prompt, observation_points=points, up=plane.normal_cam, support_offset_m=plane.offset_m
+            )
         if prior.source.startswith("library:"):
             if len(self._library_priors) >= _MAX_KEPT_PRIORS:
                 self._library_priors.pop(next(iter(self._library_priors)))  # the oldest prompt goes

@@ -353,6 +353,7 @@ class PriorLibrary:
         observation_points: ArrayLike | None = None,
         up: ArrayLike | None = None,
         *,
+        support_offset_m: float | None = None,
         n_points: int = DEFAULT_N_POINTS,
         seed: int = 0,
     ) -> ShapePrior:
@@ -365,6 +366,9 @@ class PriorLibrary:
                 depth back-projected into the camera frame), used only when no family matches.
             up: (3,) the object's up direction in the points' frame (e.g. `T_cam_support[:3, 2]`); default
                 (0, -1, 0), up for a level OpenCV camera.
+            support_offset_m: with `up` the unit normal n of the plane the object stands on, its d
+                (`n . x + d = 0`): a fitted superquadric then rests on the plane
+                (`superquadric.fit_superquadric`).
             n_points, seed: surface samples of the prior and their seed.
 
         Raises:
@@ -390,7 +394,11 @@ class PriorLibrary:
             score,
             self.threshold,
         )
-        fit = fit_superquadric(observation_points, up=(0.0, -1.0, 0.0) if up is None else up)
+        fit = fit_superquadric(
+            observation_points,
+            up=(0.0, -1.0, 0.0) if up is None else up,
+            support_offset_m=None if up is None else support_offset_m,
+        )
         return superquadric_prior(fit, n_points=n_points, seed=seed, prompt=prompt)
 
     def describe(self) -> Sequence[tuple[str, str, str, tuple[str, ...]]]:

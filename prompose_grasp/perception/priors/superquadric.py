@@ -105,8 +105,12 @@ def _rot_y(yaw: float) -> np.ndarray:
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
-def _residuals(params: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    half, e1, e2, centre, yaw = params[0:3], params[3], params[4], params[5:8], params[8]
+def _residuals(params: np.ndarray, pts: np.ndarray, floor_y: float | None = None) -> np.ndarray:
+    half, e1, e2, yaw = params[0:3], params[3], params[4], params[-1]
+    if floor_y is None:
+        centre = params[5:8]
+    else:  # standing on the support: the centre is a half-height above it
+        centre = np.array([params[5], floor_y + half[1], params[6]])
     q = (pts - centre) @ _rot_y(yaw)  # rows: R_frame_sq^T (p - c)
     log_f = _log_inside_outside(q, half, e1, e2)
     radius = np.linalg.norm(q, axis=1)
@@ -153,7 +157,9 @@ def _object_frame(points: np.ndarray, up: np.ndarray) -> np.ndarray:
     return np.stack([x, y, z], axis=1)
 
 
-def fit_superquadric(points: ArrayLike, up: ArrayLike = (0.0, -1.0, 0.0)) -> SuperquadricFit:
+def fit_superquadric(
+    points: ArrayLike, up: ArrayLike = (0.0, -1.0, 0.0), support_offset_m: float | None = None
+) -> SuperquadricFit:
     """Fit a superquadric (size, two exponents, centre, yaw about `up`) to observed surface points.
 
     Args:
@@ -162,6 +168,10 @@ def fit_superquadric(points: ArrayLike, up: ArrayLike = (0.0, -1.0, 0.0)) -> Sup
         up: (3,) the object's up direction in the points' frame (any non-zero length). Default (0, -1, 0):
             "up" in an OpenCV camera frame whose camera is level; pass the support plane's normal
             (e.g. `T_cam_support[:3, 2]`) whenever it is known.
+        support_offset_m: d of the support plane `n . x + d = 0` whose unit normal n is `up`, when the object
+            stands on it: the superquadric's bottom then rests on the plane (its centre a half-height
+            above it). A partial view alone leaves the bottom free, and the fit then floats the
+            superquadric round the seen surface, often half below the table or as a thin shell.
 
     Returns:
         `SuperquadricFit`: its frame has y = up and x the longer horizontal axis.
@@ -178,19 +188,37 @@ def fit_superquadric(points: ArrayLike, up: ArrayLike = (0.0, -1.0, 0.0)) -> Sup
         raise InvalidInputError("all points coincide; a superquadric needs a spread of surface points")
     half0 = np.maximum((hi - lo) / 2.0, 0.01 * span)
     centre0 = (lo + hi) / 2.0
-    lower = np.array([1e-4 * span] * 3 + [EXPONENT_BOUNDS[0]] * 2 + [-np.inf] * 4)
-    upper = np.array([2.0 * span] * 3 + [EXPONENT_BOUNDS[1]] * 2 + [np.inf] * 4)
+    floor_y = None
+    if support_offset_m is not None:
+        if not math.isfinite(float(support_offset_m)):
+            raise InvalidInputError(f"support_offset_m must be finite, got {support_offset_m!r}")
+        floor_y = -float(support_offset_m) / float(np.linalg.norm(up_v))
+        half0[1] = max(0.5 * (hi[1] - floor_y), 0.01 * span)
+        centre0 = np.array([centre0[0], centre0[2]])
+    n_centre = len(centre0)
+    lower = np.array([1e-4 * span] * 3 + [EXPONENT_BOUNDS[0]] * 2 + [-np.inf] * (n_centre + 1))
+    upper = np.array([2.0 * span] * 3 + [EXPONENT_BOUNDS[1]] * 2 + [np.inf] * (n_centre + 1))
     best = None
     # Two starts, a rounded and a boxy one: the exponents' cost landscape has a ridge between them.
     for e0 in (0.3, 1.0):
         x0 = np.concatenate([half0, [e0, e0], centre0, [0.0]])
         sol = least_squares(
-            _residuals, x0, bounds=(lower, upper), args=(local,), x_scale="jac", max_nfev=400, method="trf"
+            _residuals,
+            x0,
+            bounds=(lower, upper),
+            args=(local, floor_y),
+            x_scale="jac",
+            max_nfev=400,
+            method="trf",
         )
         if best is None or sol.cost < best.cost:
             best = sol
     assert best is not None
-    half, e1, e2, centre, yaw = best.x[0:3], best.x[3], best.x[4], best.x[5:8], best.x[8]
+    half, e1, e2, yaw = best.x[0:3], best.x[3], best.x[4], best.x[-1]
+    if floor_y is None:
+        centre = best.x[5:8]
+    else:
+        centre = np.array([best.x[5], floor_y + half[1], best.x[6]])
     R_obj_sq = _rot_y(float(yaw))
     if half[2] > half[0]:  # make x the longer horizontal axis: turn the frame 90 degrees about y
         half = half[[2, 1, 0]]
