@@ -26,6 +26,18 @@ Every expected failure ends the run with a typed reason (`PickOutcome.reason`) i
 | timeout | `PickConfig.timeout_s` passed (checked between stages; a running move is never cut) |
 | ambiguous | several objects fit the prompt about equally well and the command names one: nothing moved |
 | wrong_object | after the lift a standing object fits the prompt clearly better: the held one was put back |
+| protective_stop | the arm (or its controller) raised `ProtectiveStopError` (a collision, a force limit) |
+| emergency_stop | the arm raised `EmergencyStopError` (an e-stop) |
+| connection_lost | a device raised `ConnectionLostError` (its link dropped) |
+| motion_failed | the arm raised `MotionFailedError` (the controller refused or did not finish a move) |
+| gripper_failed | the gripper raised `GripperError` (it refused or did not finish a command) |
+
+A device fault ends the run at once, after the stop path (`_stop_after_fault`): after an e-stop or a lost
+link nothing more is sent to the arm (an e-stopped controller takes no motion, a person may be at the cell,
+and a dropped link may not carry a command); after the other faults the arm is told to stop. The gripper is
+opened only where that cannot drop anything: closed on an object that still rests on its support (before the
+lift) it is opened (not after an e-stop); closed on an object that may be in the air it stays closed, and the
+outcome's message says so, as it says every state it leaves the gripper in.
 
 Which object: the estimator's candidates for the prompt whose grounding score is within `candidate_ratio` of
 the best are all "the object" (identical cartons on a pallet); with `candidate_order="top_first"` (default)
@@ -119,7 +131,14 @@ from prompose_grasp.pipeline.describe import (
     prompt_colour,
 )
 from prompose_grasp.pipeline.outcome import AttemptRecord, PickOutcome, ProgressEvent
-from prompose_grasp.robot.interfaces import RGBDFrame
+from prompose_grasp.robot.interfaces import (
+    ConnectionLostError,
+    EmergencyStopError,
+    GripperError,
+    MotionFailedError,
+    RGBDFrame,
+    SafetyStopError,
+)
 from prompose_grasp.robot.validator import CommandValidator, ValidatorConfig
 
 __all__ = ["PickAndPlace", "PickConfig"]
@@ -281,6 +300,32 @@ class PickConfig:
 #: `PickConfig.candidate_order` choices.
 _CANDIDATE_ORDERS = ("top_first", "score")
 
+#: Device faults and the outcome each ends a run in, the first class that matches (an e-stop is a safety stop
+#: too; any other stop the controller's safety functions make is protective).
+_FAULTS: tuple[tuple[type[Exception], str], ...] = (
+    (EmergencyStopError, "emergency_stop"),
+    (SafetyStopError, "protective_stop"),
+    (ConnectionLostError, "connection_lost"),
+    (MotionFailedError, "motion_failed"),
+    (GripperError, "gripper_failed"),
+)
+_DEVICE_FAULTS: tuple[type[Exception], ...] = tuple(c for c, _ in _FAULTS)
+
+
+def _fault_reason(exc: BaseException) -> str:
+    """The outcome reason of a device fault (`_FAULTS`)."""
+    return next(reason for cls, reason in _FAULTS if isinstance(exc, cls))
+
+
+@dataclass
+class _Grip:
+    """What the loop last told the gripper, for the stop path after a device fault: `closed` from the first
+    close command on (a fault mid-close leaves the jaws closing) until it opens; `lifted` once an arm motion
+    started while closed (the object may be off its support, and opening would drop it)."""
+
+    closed: bool = False
+    lifted: bool = False
+
 
 class _Abort(Exception):
     """Ends a run with a typed reason (internal; never escapes `run`). `estimates` (camera frame of
@@ -380,6 +425,8 @@ class PickAndPlace:
         if not isinstance(chosen, CommandValidator):
             chosen = CommandValidator(ValidatorConfig.for_robot(robot_model), fk_tcp=robot_model.fk_tcp)
         self.validator: CommandValidator = chosen
+        self._grip = _Grip()  # what the gripper was last told (the stop path after a device fault)
+        self._modes: dict[int, tuple[float, ...]] = {}  # each camera's image size and intrinsics this run
 
     # ------------------------------------------------------------------------------------------------ run
     def run(self, command: str | Command) -> PickOutcome:
@@ -396,6 +443,8 @@ class PickAndPlace:
             "placed": [],  # ObjectModels of what this run put down (obstacles for the next place)
         }
         cmd: Command | None = None
+        self._grip = _Grip()
+        self._modes: dict[int, tuple[float, ...]] = {}  # each camera's image size and intrinsics this run
 
         def finish(reason: str, message: str) -> PickOutcome:
             timings["total"] = time.perf_counter() - t_start
@@ -440,6 +489,56 @@ class PickAndPlace:
             state["estimates"].extend(exc.estimates)
             state["T_base_cams"].extend([exc.T_base_cam] * len(exc.estimates))
             return finish(exc.reason, exc.message)
+        except _DEVICE_FAULTS as exc:
+            reason = _fault_reason(exc)
+            logger.error("device fault: %s: %s", type(exc).__name__, exc)
+            return finish(reason, self._stop_after_fault(reason, exc))
+
+    def _stop_after_fault(self, reason: str, exc: BaseException) -> str:
+        """The stop path after a device fault (see the module's docstring); returns the outcome's message: the
+        fault, what was sent after it, and the state the gripper is left in."""
+        notes = [str(exc)]
+        if reason in ("emergency_stop", "connection_lost"):
+            notes.append("nothing more was sent to the arm")
+        else:
+            try:
+                self.arm.stop()
+                notes.append("the arm was told to stop")
+            except Exception as stop_exc:  # the stop path goes on, and reports whatever the device raised
+                notes.append(f"the arm's stop command failed ({type(stop_exc).__name__}: {stop_exc})")
+        grip = self._grip
+        if not grip.closed:
+            notes.append("the gripper is open")
+        elif grip.lifted:
+            notes.append(
+                "the gripper is still closed on the object, which may be off its support (opening would "
+                "drop it): take hold of the object, then open the gripper"
+            )
+        elif reason == "emergency_stop":
+            notes.append("the gripper is still closed (nothing is sent after an e-stop): open it when safe")
+        else:
+            try:
+                self._open_jaws()
+                notes.append("the gripper was opened (the object rests on its support)")
+            except Exception as open_exc:  # as above
+                notes.append(
+                    f"the gripper is still closed: opening it failed ({type(open_exc).__name__}: {open_exc})"
+                )
+        return "; ".join(notes)
+
+    def _close_jaws(self) -> None:
+        """Close the gripper with the grip force (vacuum on), noting it for the stop path."""
+        self._grip = _Grip(closed=True)
+        self.gripper.close(self._grip_force())
+
+    def _open_jaws(self) -> None:
+        """Open the gripper fully (vacuum off), noting it for the stop path."""
+        self.gripper.open()
+        self._grip = _Grip()
+
+    def _moving_closed(self) -> None:
+        """An arm motion starts: with the gripper closed, the object may leave its support from now on."""
+        self._grip.lifted = self._grip.closed
 
     def _one_object(
         self,
@@ -898,6 +997,9 @@ class PickAndPlace:
                     width = self._pick_place(
                         obs, grasp, place_target, scene, held_scene, timings, state, n, cmd
                     )
+            except _DEVICE_FAULTS as exc:  # the run ends (`run`): the attempt says where the fault struck
+                state["attempts"].append(AttemptRecord(n, grasp, _fault_reason(exc), str(exc)))
+                raise
             except _Abort as exc:
                 state["attempts"].append(AttemptRecord(n, grasp, exc.reason, exc.message))
                 if exc.reason in ("timeout", "camera_failed", "wrong_object"):  # not another grasp of it
@@ -1171,8 +1273,9 @@ class PickAndPlace:
         if self.gripper_kind == "parallel_jaw" and callable(open_to) and grasp.opening_m > 0:
             stroke = float(getattr(self.gripper_geometry, "stroke_m", 0.085))
             open_to(min(stroke, float(grasp.opening_m)))
+            self._grip = _Grip()
         else:
-            self.gripper.open()
+            self._open_jaws()
 
     def _pick(self, grasp: Any, scene: CollisionScene, timings: dict[str, float]) -> float:
         cfg = self.config
@@ -1221,7 +1324,8 @@ class PickAndPlace:
                 "approach",
                 lambda: self.arm.move_linear(grasp.T_base_tcp, cfg.linear_speed_m_s, cfg.linear_accel_m_s2),
             )
-            self.gripper.close(self._grip_force())
+            self._close_jaws()
+            self._moving_closed()
             self._safe(
                 "lift",
                 lambda: self.arm.move_linear(
@@ -1272,7 +1376,7 @@ class PickAndPlace:
             logger.warning("could not return to the start configuration: %s", exc)
 
     def _release_and_back_off(self, grasp: Any) -> None:
-        self.gripper.open()
+        self._open_jaws()
         cfg = self.config
         try:
             self.arm.move_linear(grasp.T_base_retreat, cfg.linear_speed_m_s, cfg.linear_accel_m_s2)
@@ -1330,11 +1434,11 @@ class PickAndPlace:
         state["estimates"].append(est)
         state["T_base_cams"].append(T_base_cam)
         if slip_check and moved < self.config.moved_min_m:
-            self.gripper.open()
+            self._open_jaws()
             raise _Abort("slipped", f"the object is still where it stood (moved {1e3 * moved:.0f} mm)")
         resting = self._resting_part(obs, grasp, ests, heights, T_base_cam) if slip_check else None
         if resting is not None:
-            self.gripper.open()
+            self._open_jaws()
             raise _Abort("slipped", resting)
         if wrong is not None:
             self._put_back(cmd, obs, grasp, frame, *wrong)
@@ -1548,9 +1652,10 @@ class PickAndPlace:
             self._open_for(grasp)
             for seg in motion.segments:
                 self._emit("place" if seg.holding else "execute", f"segment {seg.name}", 0.5, attempt)
+                self._moving_closed()
                 self._safe(seg.name, functools.partial(self.arm.follow, seg.trajectory))
                 if seg.name == "approach":
-                    self.gripper.close(self._grip_force())
+                    self._close_jaws()
                 elif seg.name == "lift":
                     timings["execute"] += time.perf_counter() - t0
                     width = self._verify_held(grasp, timings)
@@ -1560,7 +1665,7 @@ class PickAndPlace:
                     t0 = time.perf_counter()
                 elif seg.name == "descend":
                     if not self.gripper.grasp_detected():
-                        self.gripper.open()
+                        self._open_jaws()
                         raise _Abort("slipped", "the object was lost during the transfer")
                     self._open_for(grasp)
         finally:
