@@ -100,7 +100,7 @@ from prompose_grasp.errors import (
     UnreachableError,
     UnsafeCommandError,
 )
-from prompose_grasp.geometry.pointcloud import back_project
+from prompose_grasp.geometry.pointcloud import back_project, valid_depth_mask
 from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.geometry.se3 import invert_T, transform_points
 from prompose_grasp.grasp import (
@@ -427,6 +427,7 @@ class PickAndPlace:
         self.validator: CommandValidator = chosen
         self._grip = _Grip()  # what the gripper was last told (the stop path after a device fault)
         self._modes: dict[int, tuple[float, ...]] = {}  # each camera's image size and intrinsics this run
+        self._last_raw_frame: RGBDFrame | None = None  # the last frame `_capture` took, robot included
 
     # ------------------------------------------------------------------------------------------------ run
     def run(self, command: str | Command) -> PickOutcome:
@@ -445,6 +446,7 @@ class PickAndPlace:
         cmd: Command | None = None
         self._grip = _Grip()
         self._modes: dict[int, tuple[float, ...]] = {}  # each camera's image size and intrinsics this run
+        self._last_raw_frame: RGBDFrame | None = None  # the last frame `_capture` took, robot included
 
         def finish(reason: str, message: str) -> PickOutcome:
             timings["total"] = time.perf_counter() - t_start
@@ -607,7 +609,12 @@ class PickAndPlace:
         except (CommandNotUnderstood, InvalidInputError) as exc:
             raise _Abort("not_understood", str(exc)) from None
 
-    def _capture(self) -> RGBDFrame:
+    def _capture(self, check: Callable[[RGBDFrame], str | None] | None = None) -> RGBDFrame:
+        """The next frame the loop can trust, without the robot's own depth readings. A dropped frame, one
+        whose image size or intrinsics differ from this camera's first frame of the run (a camera that
+        changed mode mid-run: the hand-eye calibration and the depth registration hold for one), and one
+        that `check` (the raw frame -> why it cannot be trusted, or None) refuses are retried
+        `camera_retries` times in all, then "camera_failed"."""
         errors = []
         for _ in range(self.config.camera_retries):
             try:
@@ -620,6 +627,22 @@ class PickAndPlace:
                 raise _Abort("camera_failed", f"the camera returned {type(frame).__name__}, not an RGBDFrame")
             if frame.T_base_cam is None:
                 raise _Abort("camera_failed", "the frame has no T_base_cam: calibrate the camera to the base")
+            K = frame.intrinsics
+            mode = (float(K.width), float(K.height), K.fx, K.fy, K.cx, K.cy)
+            first = self._modes.setdefault(id(self.camera), mode)
+            why = None
+            if mode != first:
+                why = (
+                    f"the camera's image size and intrinsics changed mid-run (w, h, fx, fy, cx, cy "
+                    f"{_mode_text(first)} -> {_mode_text(mode)})"
+                )
+            elif check is not None:
+                why = check(frame)
+            if why is not None:
+                errors.append(why)
+                logger.warning("frame not trusted (%s); capturing again", why)
+                continue
+            self._last_raw_frame = frame
             return self._without_robot(frame)
         raise _Abort(
             "camera_failed",
@@ -645,6 +668,7 @@ class PickAndPlace:
         timings: dict[str, float],
         min_score_ratio: float | None = None,
         judge: bool = False,
+        check: Callable[[RGBDFrame], str | None] | None = None,
     ) -> tuple[RGBDFrame, list[Any]]:
         """Capture `observe_frames` frames and estimate the prompt: the candidates, best first (one with a
         tracker over several frames or an estimator without `estimate_all`). Nothing found is retried on
@@ -654,7 +678,7 @@ class PickAndPlace:
         refusal into a guess (the chance of a spurious clear winner grows with every frame asked)."""
         for k in range(self.config.camera_retries):
             try:
-                return self._estimates_once(prompt, timings, min_score_ratio, judge)
+                return self._estimates_once(prompt, timings, min_score_ratio, judge, check)
             except _Abort as exc:
                 if exc.reason != "not_found" or exc.judged or k + 1 == self.config.camera_retries:
                     raise
@@ -667,6 +691,7 @@ class PickAndPlace:
         timings: dict[str, float],
         min_score_ratio: float | None = None,
         judge: bool = False,
+        check: Callable[[RGBDFrame], str | None] | None = None,
     ) -> tuple[RGBDFrame, list[Any]]:
         """Capture and estimate; the candidates' estimates, best first (those scoring under `min_score_ratio`
         of the best are not fitted; `candidate_ratio` when None).
@@ -677,7 +702,7 @@ class PickAndPlace:
         ratio = self.config.candidate_ratio if min_score_ratio is None else min_score_ratio
         refused: AmbiguousObjectError | None = None
         t0 = time.perf_counter()
-        frames = [self._capture() for _ in range(self.config.observe_frames)]
+        frames = [self._capture(check) for _ in range(self.config.observe_frames)]
         timings["observe"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         try:
@@ -1404,12 +1429,32 @@ class PickAndPlace:
         self._emit("verify", "re-observing", 0.8)
         before, support = obs.target, obs.support
         try:
-            # Every candidate: one that fits the prompt better may have scored under the ratio before.
-            frame, ests = self._estimates(cmd.object_prompt, timings, 0.0)
+            # Every candidate: one that fits the prompt better may have scored under the ratio before. A
+            # frame without depth where the object stood shows nothing about it (`_depth_gone`).
+            frame, ests = self._estimates(
+                cmd.object_prompt, timings, 0.0, check=functools.partial(_depth_gone, obs=obs)
+            )
         except _Abort as exc:
-            if exc.reason == "not_found":  # lifted out of view or hidden by the gripper: not where it stood
-                return
-            raise
+            if exc.reason == "camera_failed":  # no frame to judge the lift on: set it down, unverified
+                self._set_down(grasp, f"the lift could not be verified: {exc.message}")
+            if exc.reason != "not_found":
+                raise
+            # Nothing seen is no evidence by itself; the depth where the object stood is (the robot's own
+            # readings kept: a hand in front of that place is something there): read as it was, the object
+            # is still there; no longer (seen past it, or something in front: the hand, the object in it),
+            # it is not where it stood.
+            vacated = _vacated(self._last_raw_frame, obs)
+            if vacated is None:
+                self._set_down(
+                    grasp, "the lift could not be verified: the re-observation sees no object and too few "
+                    "depth readings where it stood",
+                )  # fmt: skip
+            if not vacated and slip_check:
+                self._open_jaws()
+                raise _Abort(
+                    "slipped", "no object seen, but the depth where it stood still reads its surface"
+                ) from None
+            return
         t0 = time.perf_counter()
         T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
         top_before = _top_height(before, support)
@@ -1572,6 +1617,23 @@ class PickAndPlace:
             return None
         return held, other, f"{100 * s_held:.0f} % {colour} pixels against {100 * s_other:.0f} %"
 
+    def _set_down(self, grasp: Any, why: str) -> None:
+        """Set a lifted object down where it was picked when the lift cannot be verified (the lift line back
+        down to the grasp pose, validated before it is sent, then open and back off), and end the attempt
+        "camera_failed" with `why`; when the way down is refused the object stays held, and the message says
+        so."""
+        cfg = self.config
+        try:
+            for T in (grasp.T_base_tcp, grasp.T_base_retreat):
+                self.validator.validate_linear_move(T, cfg.linear_speed_m_s, cfg.linear_accel_m_s2)
+            self.arm.move_linear(grasp.T_base_tcp, cfg.linear_speed_m_s, cfg.linear_accel_m_s2)
+        except (UnreachableError, UnsafeCommandError) as exc:
+            raise _Abort(
+                "camera_failed", f"{why}; it could not be set down ({exc}): the gripper still holds it"
+            ) from None
+        self._release_and_back_off(grasp)
+        raise _Abort("camera_failed", f"{why}; the object was set down where it was picked")
+
     def _put_back(
         self, cmd: Command, obs: _Observation, grasp: Any, frame: RGBDFrame, held: Any, other: Any, why: str
     ) -> None:
@@ -1727,6 +1789,86 @@ _STOOD_MIN_POINTS = 20
 _COLOUR_ABSENT = 0.03
 #: ... while another candidate shows it on at least this share: that colour, not a printed detail [-].
 _COLOUR_SHOWN = 0.25
+
+
+#: A re-observation is trusted only with depth readings on at least this share of the pixels that had one
+#: where the object stood in the pick's view (the object's box, projected): the lifted object, the hand and
+#: the table behind them all give readings; a depth dropout (a sensor fault, a saturated projector) does not.
+_DEPTH_KEPT_SHARE = 0.5
+#: A depth reading within this of where the pick's view saw the object's surface is that surface (sensor
+#: noise at ~1 m is a few millimetres to 1 cm; a lifted object is at least 10 cm from where it stood) [m].
+_SAME_SURFACE_M = 0.02
+#: The object is still where it stood when at least this share of the readings there are its surface [-].
+_STILL_SHARE = 0.5
+
+
+def _mode_text(mode: tuple[float, ...]) -> str:
+    return "(" + ", ".join(f"{v:g}" for v in mode) + ")"
+
+
+def _box_window(frame: RGBDFrame, pose_base: Pose9D) -> tuple[int, int, int, int] | None:
+    """Pixel window (u0, u1, v0, v1), end-exclusive, of a box in base seen in `frame`: the bounds of its
+    projected corners, clipped to the image; None when a corner lies behind the camera or the window is
+    empty."""
+    T_cam_base = invert_T(np.asarray(frame.T_base_cam, dtype=np.float64))
+    X = transform_points(T_cam_base, pose_base.corners())
+    if np.any(X[:, 2] <= 0):
+        return None
+    K = frame.intrinsics
+    u = K.fx * X[:, 0] / X[:, 2] + K.cx
+    v = K.fy * X[:, 1] / X[:, 2] + K.cy
+    u0, u1 = max(0, math.floor(u.min())), min(K.width, math.ceil(u.max()) + 1)
+    v0, v1 = max(0, math.floor(v.min())), min(K.height, math.ceil(v.max()) + 1)
+    return None if u0 >= u1 or v0 >= v1 else (u0, u1, v0, v1)
+
+
+def _depth_gone(frame: RGBDFrame, obs: _Observation) -> str | None:
+    """Why a re-observation frame cannot be trusted about the object of `obs`, or None: where the object stood
+    (its box, projected), it has depth readings on fewer than `_DEPTH_KEPT_SHARE` of the pixels the pick's
+    view had them on."""
+    before_win, now_win = _box_window(obs.frame, obs.target.pose), _box_window(frame, obs.target.pose)
+    if before_win is None:
+        return None  # the pick's view did not hold the box: nothing to compare with
+    u0, u1, v0, v1 = before_win
+    had = int(np.count_nonzero(valid_depth_mask(obs.frame.depth_m[v0:v1, u0:u1])))
+    if had == 0:
+        return None
+    has = 0
+    if now_win is not None:
+        u0, u1, v0, v1 = now_win
+        has = int(np.count_nonzero(valid_depth_mask(frame.depth_m[v0:v1, u0:u1])))
+    if has >= _DEPTH_KEPT_SHARE * had:
+        return None
+    return f"the depth is gone where the object stood ({has} readings there, the pick's view had {had})"
+
+
+def _vacated(frame: RGBDFrame | None, obs: _Observation) -> bool | None:
+    """Does the depth of `frame` show that the object of `obs` left where it stood? The pick's observed points
+    of the object (inside its box, above the support, as `_stood_before`) are looked up in `frame`: True when
+    fewer than `_STILL_SHARE` of the readings there lie on its surface (within `_SAME_SURFACE_M`: seen past
+    it, or something in front of it); False when more do (it is still there); None when there are fewer
+    than `_STOOD_MIN_POINTS` readings to tell."""
+    if frame is None or frame.T_base_cam is None:
+        return None
+    P = obs.points_base
+    pose = obs.target.pose
+    local = (P - pose.t) @ pose.R
+    grow = _STOOD_MARGIN_M if obs.support is not None else 0.0
+    inside = np.all(np.abs(local) <= 0.5 * np.asarray(pose.size) + grow, axis=1)
+    if obs.support is not None:
+        inside &= P @ np.asarray(obs.support.normal) + obs.support.offset_m > _STOOD_MARGIN_M
+    X = transform_points(invert_T(np.asarray(frame.T_base_cam, dtype=np.float64)), P[inside])
+    X = X[X[:, 2] > 0]
+    K = frame.intrinsics
+    u = np.rint(K.fx * X[:, 0] / X[:, 2] + K.cx).astype(np.int64)
+    v = np.rint(K.fy * X[:, 1] / X[:, 2] + K.cy).astype(np.int64)
+    in_image = (u >= 0) & (u < K.width) & (v >= 0) & (v < K.height)
+    depth = frame.depth_m[v[in_image], u[in_image]]
+    read = valid_depth_mask(depth)
+    if int(np.count_nonzero(read)) < _STOOD_MIN_POINTS:
+        return None
+    still = np.abs(depth[read] - X[in_image][read, 2]) <= _SAME_SURFACE_M
+    return bool(np.mean(still) < _STILL_SHARE)
 
 
 def _aim_camera(T_base_tcp: np.ndarray, T_tcp_cam: np.ndarray, point: np.ndarray) -> np.ndarray:

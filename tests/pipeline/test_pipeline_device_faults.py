@@ -7,10 +7,12 @@ pre-grasp (motion 1), the approach line (motion 2), the gripper's close, the lif
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
-from test_pipeline_pick_faults import PICK, ROBOT, Camera, OracleEstimator
+from test_pipeline_pick_faults import PICK, ROBOT, Camera, K, OracleEstimator
 
-from prompose_grasp.errors import DeviceFault
+from prompose_grasp.errors import DeviceFault, ObjectNotFoundError
+from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.pipeline.outcome import DEVICE_FAULT_REASONS, REASONS
 from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
 from prompose_grasp.robot import FakeArm, FakeGripper
@@ -20,6 +22,7 @@ from prompose_grasp.robot.interfaces import (
     GripperError,
     MotionFailedError,
     ProtectiveStopError,
+    RGBDFrame,
 )
 
 FAULTS = [
@@ -215,3 +218,120 @@ def test_the_cli_exit_status_says_device_fault_not_bad_input(tmp_path, monkeypat
     assert cli.exit_status(result if isinstance(result, str) else "motion_failed") == status
     for reason in DEVICE_FAULT_REASONS:
         assert cli.exit_status(reason) == cli.EXIT_DEVICE_FAULT != cli.EXIT_BAD_INPUT
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Verification fails closed: a re-observation frame that cannot be trusted, or one that sees nothing, is no
+# evidence of a lift.
+
+BOX_TOP_Z = 0.06  # the oracle's box: centre z 0.03 m, 6 cm tall (object +y is base +z)
+
+
+class BoxCamera(Camera):
+    """`Camera`'s table 1 m below with the oracle's box on it (its top face at `BOX_TOP_Z`, over its
+    footprint x -0.5 +- 0.025, y 0.15 +- 0.03 m) while `box_on(call)` is True; capture numbers in `faulty`
+    give a frame with no depth at all ("dropout"), or with half the resolution and the intrinsics scaled
+    to it ("rescaled")."""
+
+    def __init__(self, box_on=lambda call: True, faulty=(), fault="dropout"):
+        super().__init__()
+        self.box_on, self.faulty, self.fault = box_on, set(faulty), fault
+
+    def capture(self) -> RGBDFrame:
+        frame = super().capture()
+        depth = frame.depth_m.copy()
+        if self.box_on(self.calls):
+            u, v = np.meshgrid(np.arange(K.width), np.arange(K.height))
+            z = 1.0 - BOX_TOP_Z
+            x = -0.5 + (u - K.cx) / K.fx * z  # base x of the pixel's ray at the box top (camera x = base x)
+            y = -(v - K.cy) / K.fy * z  # camera y = -base y
+            depth[(np.abs(x + 0.5) <= 0.025) & (np.abs(y - 0.15) <= 0.03)] = z
+        if self.calls in self.faulty and self.fault == "dropout":
+            depth[:] = 0.0
+        if self.calls in self.faulty and self.fault == "rescaled":
+            half = CameraIntrinsics(K.fx / 2, K.fy / 2, (K.cx - 0.5) / 2, (K.cy - 0.5) / 2, 80, 60)
+            return RGBDFrame(frame.rgb[::2, ::2], depth[::2, ::2], half, frame.timestamp_s, frame.T_base_cam)
+        return RGBDFrame(frame.rgb, depth, K, frame.timestamp_s, frame.T_base_cam)
+
+
+class SeesNothingAfterTheFirst(OracleEstimator):
+    """Finds the box in the first frame; after that, nothing (the re-observation "sees nothing")."""
+
+    def estimate(self, frame, prompt):
+        if self.calls >= 1:
+            self.calls += 1
+            raise ObjectNotFoundError(f"no object matches {prompt!r}")
+        return super().estimate(frame, prompt)
+
+
+class LiftedAfterTheFirst(OracleEstimator):
+    """The box as estimated, then 12 cm higher (in the hand) from the second frame on."""
+
+    def estimate(self, frame, prompt):
+        if self.calls == 1:
+            self.t_base = self.t_base + np.array([0.0, 0.0, 0.12])
+        return super().estimate(frame, prompt)
+
+
+def _run_reobserve(camera, estimator):
+    """One grasp of the 5 cm box, re-observed after the lift; the outcome and the gripper."""
+    cfg = PickConfig(reobserve=True, max_estimates=1, grasps_per_estimate=1)
+    arm, gripper = FakeArm(ROBOT), FaultyGripper()
+    arm.connect()
+    gripper.connect()
+    pnp = PickAndPlace(arm, gripper, camera, estimator, ROBOT, "parallel_jaw", config=cfg)
+    return pnp.run(PICK), gripper
+
+
+@pytest.mark.parametrize("fault", ["dropout", "rescaled"])
+def test_an_untrusted_re_observation_is_no_lift_and_the_object_is_set_down(fault):
+    # The gripper holds the box and every re-observation frame has no depth (or changed resolution and
+    # intrinsics): the lift cannot be verified. Not a success: "camera_failed", the box set down where it was
+    # picked and the gripper opened.
+    camera = BoxCamera(faulty=range(2, 10**6), fault=fault)
+    outcome, gripper = _run_reobserve(camera, SeesNothingAfterTheFirst())
+    assert outcome.reason == "camera_failed", outcome.message
+    assert "could not be verified" in outcome.message and "set down where it was picked" in outcome.message
+    assert ("depth is gone" if fault == "dropout" else "intrinsics changed") in outcome.message
+    assert gripper.commands[-2:] == ["close", "open"]
+    assert camera.calls == 1 + 3  # the pick's frame, then `camera_retries` refused re-observation frames
+
+
+@pytest.mark.parametrize("fault", ["dropout", "rescaled"])
+def test_one_untrusted_frame_is_captured_again(fault):
+    # Only the first re-observation frame is faulty: the next one is used, and it sees the box lifted.
+    camera = BoxCamera(box_on=lambda call: call == 1, faulty={2}, fault=fault)
+    outcome, _ = _run_reobserve(camera, LiftedAfterTheFirst())
+    assert outcome.success, outcome.message
+    assert camera.calls == 3
+
+
+def test_seeing_nothing_while_the_depth_still_shows_the_object_is_slipped():
+    # The estimator finds nothing in the re-observation, but the depth where the box stood still reads its
+    # top face: it did not leave (the gripper's "held" notwithstanding).
+    outcome, gripper = _run_reobserve(BoxCamera(), SeesNothingAfterTheFirst())
+    assert outcome.reason == "slipped" and "still reads its surface" in outcome.message
+    assert gripper.commands[-1] == "open"
+
+
+def test_seeing_nothing_where_the_object_stood_is_seen_empty_is_a_lift():
+    # The box is gone from where it stood (the table is seen there, 6 cm deeper): lifted out of view.
+    outcome, _ = _run_reobserve(BoxCamera(box_on=lambda call: call == 1), SeesNothingAfterTheFirst())
+    assert outcome.success, outcome.message
+
+
+def test_seeing_nothing_and_no_depth_where_it_stood_is_no_lift():
+    # After the lift the depth has a hole just over where the box stood (the rest of the frame reads): the
+    # readings there are what the lift is judged on, so the frame is not trusted: camera_failed, set down.
+    class HoleOverTheBox(BoxCamera):
+        def capture(self):
+            frame = super().capture()
+            if self.calls == 1:
+                return frame
+            depth = frame.depth_m.copy()
+            depth[0:25, 65:95] = 0.0  # the box's window (u 71-88, v 2-22) and a margin
+            return RGBDFrame(frame.rgb, depth, K, frame.timestamp_s, frame.T_base_cam)
+
+    outcome, gripper = _run_reobserve(HoleOverTheBox(), SeesNothingAfterTheFirst())
+    assert outcome.reason == "camera_failed" and "depth is gone" in outcome.message, outcome.message
+    assert gripper.commands[-1] == "open"
