@@ -56,6 +56,15 @@ support (it rose less than half the lift and some of its seen points lie on the 
 far side of its rim, its handle on the table). A grasp whose approach or lift line would flip a wrist
 on the way (IK every 5 mm, seeded with the last) is skipped before anything moves.
 
+Verification fails closed. Every frame must have the image size and intrinsics of its camera's first frame of
+the run (a camera that changes mode mid-run), and a re-observation frame must have depth readings on at least
+half the pixels the pick's view had them on, in the object's projected box (`_depth_gone`: a dropout): a
+frame that fails is captured again, `camera_retries` times in all; then a lifted object is set down where it
+was picked (`_set_down`) and the run ends "camera_failed". A re-observation that finds no object is judged on
+the raw depth where the object stood (`_vacated`): still reading its surface is "slipped", no longer reading
+it (seen past it, or the hand in front) is a lift, too few readings there is no evidence ("camera_failed",
+set down).
+
 No wrong-object success: after the lift (pick and place alike) the prompt is estimated again; the candidate
 nearest the tcp and risen from where the object stood is what is held. When another candidate, standing where
 the camera saw an object before the pick, fits the prompt clearly better (`PickConfig.wrong_object_margin` on

@@ -335,3 +335,18 @@ def test_seeing_nothing_and_no_depth_where_it_stood_is_no_lift():
     outcome, gripper = _run_reobserve(HoleOverTheBox(), SeesNothingAfterTheFirst())
     assert outcome.reason == "camera_failed" and "depth is gone" in outcome.message, outcome.message
     assert gripper.commands[-1] == "open"
+
+
+def test_a_camera_that_changes_mode_between_rounds_is_camera_failed():
+    # Round 1 slips (the jaws close on nothing); every frame after the first comes at half the resolution
+    # with its intrinsics scaled to it: round 2's observation is refused, not estimated on another mode.
+    camera = BoxCamera(faulty=range(2, 10**6), fault="rescaled")
+    cfg = PickConfig(reobserve=False, max_estimates=2, grasps_per_estimate=1)
+    arm, gripper = FakeArm(ROBOT), FakeGripper(object_width_m=None)
+    arm.connect()
+    gripper.connect()
+    pnp = PickAndPlace(arm, gripper, camera, OracleEstimator(), ROBOT, "parallel_jaw", config=cfg)
+    outcome = pnp.run(PICK)
+    assert outcome.reason == "camera_failed" and "intrinsics changed mid-run" in outcome.message
+    assert [a.result for a in outcome.attempts] == ["slipped"]
+    assert "(160, 120, 300, 300, 79.5, 59.5) -> (80, 60, 150, 150, 39.5, 29.5)" in outcome.message
