@@ -454,8 +454,8 @@ class PickAndPlace:
         }
         cmd: Command | None = None
         self._grip = _Grip()
-        self._modes: dict[int, tuple[float, ...]] = {}  # each camera's image size and intrinsics this run
-        self._last_raw_frame: RGBDFrame | None = None  # the last frame `_capture` took, robot included
+        self._modes = {}
+        self._last_raw_frame = None
 
         def finish(reason: str, message: str) -> PickOutcome:
             timings["total"] = time.perf_counter() - t_start
