@@ -1,4 +1,16 @@
-"""The `prompose-grasp` command. Argument parsing lives here and nowhere else in the library."""
+"""The `prompose-grasp` command. Argument parsing lives here and nowhere else in the library.
+
+Exit status, every command:
+
+- 0: done (`run`: the command succeeded).
+- 1: `run` (and `demo`) ended in a typed outcome that is neither a success nor a device fault (nothing
+  matched, no feasible grasp, slipped, ambiguous, ...); the outcome's reason and message are printed.
+- 2: bad input: a missing or malformed file or flag, refused before any work; one line on stderr.
+- 3: a device fault: the arm, the gripper or a link failed (a protective or emergency stop, a lost
+  connection, a refused or unfinished move, a gripper fault), as the outcome of `run` / `demo`
+  (`pipeline.outcome.DEVICE_FAULT_REASONS`, after the loop's stop path) or raised while connecting (one line
+  on stderr). A person should look at the cell.
+"""
 
 from __future__ import annotations
 
@@ -12,7 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import prompose_grasp
-from prompose_grasp.errors import InvalidInputError, PromposeError
+from prompose_grasp.errors import DeviceFault, InvalidInputError, PromposeError
 
 if TYPE_CHECKING:  # the estimator loads torch: imported where a command needs it, so --help stays fast
     from prompose_grasp.perception.estimator import Estimate
@@ -254,7 +266,24 @@ def _run_run(args: argparse.Namespace) -> int:
         }
         with open(args.json_out, "w") as f:
             json.dump(doc, f, indent=2)
-    return 0 if outcome.success else 1
+    return exit_status(outcome.reason)
+
+
+#: Exit status of a `run` that ended in a typed outcome that is neither a success nor a device fault ...
+EXIT_FAILED = 1
+#: ... of bad input (`main`) ...
+EXIT_BAD_INPUT = 2
+#: ... and of a device fault (module docstring).
+EXIT_DEVICE_FAULT = 3
+
+
+def exit_status(reason: str) -> int:
+    """The exit status of a `run` outcome with this reason (module docstring)."""
+    from prompose_grasp.pipeline.outcome import DEVICE_FAULT_REASONS
+
+    if reason == "success":
+        return 0
+    return EXIT_DEVICE_FAULT if reason in DEVICE_FAULT_REASONS else EXIT_FAILED
 
 
 def _add_bench_pick(sub: argparse._SubParsersAction) -> None:
@@ -496,10 +525,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     try:
         return int(args.func(args))
+    except DeviceFault as exc:  # raised outside the loop's own handling (connecting, disconnecting)
+        message = " ".join(str(exc).split())
+        print(f"prompose-grasp {args.command}: device fault: {message}", file=sys.stderr)
+        return EXIT_DEVICE_FAULT
     except PromposeError as exc:
         message = " ".join(str(exc).split())  # one line, whatever the message holds
         print(f"prompose-grasp {args.command}: error: {message}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
 
 
 if __name__ == "__main__":

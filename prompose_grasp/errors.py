@@ -51,6 +51,12 @@ class DeviceNotConnectedError(PromposeError, RuntimeError):
     """A device (arm, gripper, camera) was used before `connect()` or after `disconnect()`."""
 
 
+class DeviceFault(PromposeError):
+    """A device failed while in use: a safety stop, a dropped link, a refused or unfinished move, a gripper
+    fault. The kinds are defined with the device interfaces (`prompose_grasp.robot.interfaces`); the command
+    line exits with status 3 on any of them (`prompose_grasp.cli`)."""
+
+
 class ObjectNotFoundError(PromposeError):
     """No object in the frame matches the prompt (grounding found no candidate)."""
 

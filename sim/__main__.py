@@ -53,6 +53,7 @@ def _view(args: argparse.Namespace) -> int:
 
 
 def _pick(args: argparse.Namespace) -> int:
+    from prompose_grasp.pipeline.outcome import DEVICE_FAULT_REASONS
     from sim.pick import run_episode
 
     def show(event) -> None:
@@ -68,7 +69,10 @@ def _pick(args: argparse.Namespace) -> int:
         f"lift {100 * s['lift_height_m']:.1f} cm; sim {s['sim_time_s']:.1f} s in "
         f"{s['timings_s']['episode_wall']:.1f} s wall; wrote {args.out}/summary.json"
     )
-    return 0 if s["success"] else 1
+    if s["success"]:
+        return 0
+    # the `prompose-grasp` exit codes: 3 a device fault (a protective stop from contact), else 1
+    return 3 if s["outcome"]["reason"] in DEVICE_FAULT_REASONS else 1
 
 
 def main(argv: list[str] | None = None) -> int:

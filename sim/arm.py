@@ -18,6 +18,17 @@ call blocks until the motion is done and the arm has settled), one physics step 
 Control: MuJoCo position servos (see `sim.robot_scene`) with velocity feed-forward (the target is advanced by
 `kv/kp * qd_des`, which makes the servo force `kp (q_des - q) + kv (qd_des - qd)`) and inertial feed-forward
 `M(q) qdd_des` as an applied joint force; gravity is compensated per body.
+
+Protective stop, like a UR controller's force limit: every physics step of a motion sums the contact forces
+the rest of the world exerts on the robot (arm and gripper) into one net force, the external force a UR
+controller estimates at the tool from its joint torques (a grip's squeeze cancels out between the fingers; a
+held object adds its weight). The suction cup's lip (`COMPLIANT_GEOMS`) is left out: it stands for the
+bellows, which give `compliance_m` (1 cm) under a few newtons on a real cup, while the sim's lip is rigid and
+its contact during a planned press carries the servo's full stiffness (155 N on a carton, depalletising seed
+0). When the mean over `FORCE_WINDOW_S` exceeds `protective_stop_force_n` (default 150 N, the UR e-Series
+default force limit) the arm holds where it is and the command raises the robot
+layer's `ProtectiveStopError` (the one the UR adapter raises); every motion command raises it until
+`unlock_protective_stop()` (the pendant's "unlock"), or a new `connect()`.
 """
 
 from __future__ import annotations
@@ -26,6 +37,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import mujoco
@@ -35,16 +47,41 @@ from scipy.interpolate import PchipInterpolator
 
 from prompose_grasp.errors import InvalidInputError, UnreachableError, UnsafeCommandError
 from prompose_grasp.geometry.se3 import make_T, so3_exp, so3_log
-from prompose_grasp.robot.interfaces import Arm, JointCommand, JointTrajectory, LinearCommand
+from prompose_grasp.robot.interfaces import (
+    Arm,
+    JointCommand,
+    JointTrajectory,
+    LinearCommand,
+    ProtectiveStopError,
+)
 from prompose_grasp.robot.model import RobotModel
 from prompose_grasp.robot.validator import CommandValidator, ValidatorConfig
 
-__all__ = ["ROTATION_LENGTH_M", "SimArm", "SimTiming", "trapezoid_profile"]
+__all__ = [
+    "COMPLIANT_GEOMS",
+    "FORCE_WINDOW_S",
+    "PROTECTIVE_STOP_FORCE_N",
+    "ROTATION_LENGTH_M",
+    "SimArm",
+    "SimTiming",
+    "trapezoid_profile",
+]
 
 log = logging.getLogger(__name__)
 
 #: Path length a TCP rotation of one radian counts as in `move_linear` timing [m/rad].
 ROTATION_LENGTH_M = 0.2
+#: The net external contact force on the robot that stops it [N]: the UR e-Series safety configuration's
+#: default force limit (normal mode).
+PROTECTIVE_STOP_FORCE_N = 150.0
+#: The force is judged as its mean over this long [s]: a controller's force estimate is filtered over a few
+#: control cycles, and one 2 ms step of a stiff contact's solver impulse is not a sustained push.
+FORCE_WINDOW_S = 0.01
+#: Robot geoms whose contacts are not counted: compliant parts modelled rigid (module docstring).
+COMPLIANT_GEOMS = ("suction_cup_face",)
+#: After a protective stop the arm is held this long before the command raises [s] (a UR's stop brakes the
+#: arm within tens of milliseconds).
+_STOP_HOLD_S = 0.05
 
 
 @dataclass(frozen=True)
@@ -124,6 +161,12 @@ class SimArm(Arm):
         waypoint_dt_s: spacing of the IK waypoints of `move_linear` [s].
         settle_speed_rad_s: a motion is done when every joint is slower than this after the profile ends.
         max_settle_s: longest wait for that after the profile [s].
+        protective_stop_force_n: the net external contact force that stops the arm (module docstring) [N],
+            or None for no force limit.
+
+    Attributes:
+        protective_stopped: the arm is in a protective stop (motion commands raise `ProtectiveStopError`).
+        max_external_force_n: the largest windowed net external force seen during motions so far [N].
     """
 
     def __init__(
@@ -134,6 +177,7 @@ class SimArm(Arm):
         waypoint_dt_s: float = 0.016,
         settle_speed_rad_s: float = 2e-3,
         max_settle_s: float = 0.5,
+        protective_stop_force_n: float | None = PROTECTIVE_STOP_FORCE_N,
     ):
         info = getattr(world, "robot", None)
         if info is None:
@@ -143,6 +187,9 @@ class SimArm(Arm):
             raise InvalidInputError(f"robot_model is {robot.name!r} but the world's arm is {info.name!r}")
         if not (math.isfinite(waypoint_dt_s) and waypoint_dt_s >= world.model.opt.timestep):
             raise InvalidInputError(f"waypoint_dt_s must be >= the time step, got {waypoint_dt_s}")
+        limit = protective_stop_force_n
+        if limit is not None and not (math.isfinite(float(limit)) and float(limit) > 0):
+            raise InvalidInputError(f"protective_stop_force_n must be None or > 0 N, got {limit!r}")
         self.world = world
         self.info = info
         self.robot = robot
@@ -158,11 +205,57 @@ class SimArm(Arm):
         self._ff_gain = info.kv / info.kp  # velocity feed-forward as a target advance [s]
         self._vec = np.zeros(m.nv)
         self._res = np.zeros(m.nv)
+        self.protective_stop_force_n = None if limit is None else float(limit)
+        self.protective_stopped = False
+        self.max_external_force_n = 0.0
+        root = m.body_rootid[info.flange_body]  # the arm's base body under the world; its subtree: the robot
+        self._robot_geom = np.asarray(m.body_rootid[m.geom_bodyid] == root)  # (ngeom,) bool
+        self._counted = np.ones(m.ngeom, dtype=bool)  # (ngeom,) bool: contacts of the geom count
+        for name in COMPLIANT_GEOMS:
+            g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, name)
+            if g >= 0:
+                self._counted[g] = False
+        self._forces: deque[float] = deque(maxlen=max(1, round(FORCE_WINDOW_S / self._dt)))
+        self._f6 = np.zeros(6)
+        self._contact_note = ""
 
     # ------------------------------------------------------------------ device
     def connect(self) -> None:
         super().connect()
         self._stop.clear()
+        self.protective_stopped = False
+
+    def unlock_protective_stop(self) -> None:
+        """Clear a protective stop (a person found the cause; the pendant's "unlock")."""
+        self._require()
+        self.protective_stopped = False
+
+    def external_force(self) -> tuple[float, str]:
+        """The net contact force the world exerts on the robot now [N], and the contact that pushes hardest
+        ("robot geom <- other geom"; "" without contact)."""
+        m, d = self.world.model, self.world.data
+        n = int(d.ncon)
+        if n == 0:
+            return 0.0, ""
+        geoms = np.asarray(d.contact.geom[:n])
+        on_robot = self._robot_geom[geoms]
+        # robot against the rest (not self-contact), compliant parts left out
+        hits = np.flatnonzero((on_robot[:, 0] != on_robot[:, 1]) & self._counted[geoms].all(axis=1))
+        if hits.size == 0:
+            return 0.0, ""
+        total = np.zeros(3)
+        worst, note = -1.0, ""
+        frames = np.asarray(d.contact.frame[:n])
+        for i in hits:
+            mujoco.mj_contactForce(m, d, int(i), self._f6)
+            f_world = frames[i].reshape(3, 3).T @ self._f6[:3]  # geom1 on geom2, in the world frame
+            g_robot, g_other = (geoms[i, 1], geoms[i, 0]) if on_robot[i, 1] else (geoms[i, 0], geoms[i, 1])
+            f_robot = f_world if on_robot[i, 1] else -f_world
+            total += f_robot
+            if self._f6[0] > worst:
+                worst = float(self._f6[0])
+                note = f"{_geom_name(m, g_robot)} <- {_geom_name(m, g_other)}"
+        return float(np.linalg.norm(total)), note
 
     # ------------------------------------------------------------------ state
     def joint_positions(self) -> np.ndarray:
@@ -198,6 +291,7 @@ class SimArm(Arm):
     # ------------------------------------------------------------------ commands
     def move_joints(self, q: ArrayLike, speed: float, accel: float) -> JointCommand:
         self._require()
+        self._require_unlocked("move_joints")
         q0 = self.joint_targets()
         command = self.validator.validate_joint_move(q, speed, accel, q_current=q0)
         delta = command.q - q0
@@ -211,6 +305,7 @@ class SimArm(Arm):
 
     def move_linear(self, T_base_tcp: ArrayLike, speed: float, accel: float) -> LinearCommand:
         self._require()
+        self._require_unlocked("move_linear")
         command = self.validator.validate_linear_move(T_base_tcp, speed, accel)
         q0 = self.joint_targets()
         T0, T1 = self.robot.fk_tcp(q0), command.T_base_tcp
@@ -252,6 +347,7 @@ class SimArm(Arm):
 
     def follow(self, trajectory: JointTrajectory) -> JointTrajectory:
         self._require()
+        self._require_unlocked("follow")
         q0 = self.joint_targets()
         q_meas = self.joint_positions()
         q_first = np.asarray(trajectory.q, dtype=np.float64)[0]
@@ -272,6 +368,47 @@ class SimArm(Arm):
         self._stop.set()
 
     # ------------------------------------------------------------------ execution
+    def _require_unlocked(self, what: str) -> None:
+        if self.protective_stopped:
+            raise ProtectiveStopError(
+                f"{what}: the arm is in a protective stop; find the cause, then unlock_protective_stop()"
+            )
+
+    def _step(self) -> str | None:
+        """One physics step; why the arm must stop now (the windowed external force over the limit), else
+        None."""
+        self.world.step(1)
+        if self.protective_stop_force_n is None:
+            return None
+        force, note = self.external_force()
+        if note:
+            self._contact_note = note
+        self._forces.append(force)
+        mean = sum(self._forces) / len(self._forces)
+        self.max_external_force_n = max(self.max_external_force_n, mean)
+        if len(self._forces) == self._forces.maxlen and mean > self.protective_stop_force_n:
+            return (
+                f"protective stop: {mean:.0f} N of contact force on the robot over "
+                f"{1e3 * FORCE_WINDOW_S:g} ms (limit {self.protective_stop_force_n:g} N; hardest contact "
+                f"{self._contact_note})"
+            )
+        return None
+
+    def _protective_stop(self, why: str) -> None:
+        """Hold the arm where it is (servos at the measured joints, no feed-forward), mark it stopped and
+        raise `ProtectiveStopError`."""
+        d, info = self.world.data, self.info
+        d.ctrl[info.actuator_ids] = d.qpos[info.qpos_adr]
+        d.qfrc_applied[info.dof_adr] = 0.0
+        n = round(_STOP_HOLD_S / self._dt)
+        self.world.step(n)
+        self._steps += n
+        self._forces.clear()
+        self.protective_stopped = True
+        q = np.round(d.qpos[info.qpos_adr], 4).tolist()
+        log.warning("SimArm: %s; held at %s rad", why, q)
+        raise ProtectiveStopError(f"{why}; the arm holds at {q} rad")
+
     def _step_times(self, duration_s: float) -> np.ndarray:
         n = max(1, math.ceil(duration_s / self._dt - 1e-9))
         return np.arange(1, n + 1) * self._dt
@@ -299,32 +436,41 @@ class SimArm(Arm):
     def _execute(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, q_final: np.ndarray) -> None:
         """Step the servo set-points (N, 6) through the physics, then hold `q_final` until the arm settles."""
         self._stop.clear()
+        self._forces.clear()
         world, d, info = self.world, self.world.data, self.info
         wall0 = time.perf_counter()
         steps = 0
         stopped = False
+        fault = None
         for k in range(len(q)):
             if self._stop.is_set():
                 stopped = True
                 q_final = self._decelerate(q[k - 1] if k else q[0], qd[k - 1] if k else qd[0])
                 break
             self._apply(q[k], qd[k], qdd[k])
-            world.step(1)
+            fault = self._step()
             steps += 1
-        d.ctrl[info.actuator_ids] = q_final
-        d.qfrc_applied[info.dof_adr] = 0.0
-        max_steps = round(self.max_settle_s / self._dt)
-        for _ in range(max_steps):
-            if np.max(np.abs(d.qvel[info.dof_adr])) < self.settle_speed_rad_s:
+            if fault is not None:
                 break
-            world.step(1)
-            steps += 1
+        if fault is None:
+            d.ctrl[info.actuator_ids] = q_final
+            d.qfrc_applied[info.dof_adr] = 0.0
+            max_steps = round(self.max_settle_s / self._dt)
+            for _ in range(max_steps):
+                if np.max(np.abs(d.qvel[info.dof_adr])) < self.settle_speed_rad_s:
+                    break
+                fault = self._step()
+                steps += 1
+                if fault is not None:
+                    break
         self._steps += steps
         self._wall_s += time.perf_counter() - wall0
-        if stopped:
-            log.info("SimArm: motion stopped at %s rad", np.round(q_final, 4).tolist())
         if not world.is_finite():
             raise InvalidInputError("the simulation diverged (non-finite state) during an arm motion")
+        if fault is not None:
+            self._protective_stop(fault)
+        if stopped:
+            log.info("SimArm: motion stopped at %s rad", np.round(q_final, 4).tolist())
 
     def _decelerate(self, q0: np.ndarray, v0: np.ndarray) -> np.ndarray:
         """Ramp every joint's set-point speed from v0 to zero at the acceleration cap; returns the end q."""
@@ -338,7 +484,18 @@ class SimArm(Arm):
         qdd = np.where(t[:, None] < t_stop[None, :], -sign * a_max, 0.0)
         for k in range(len(t)):
             self._apply(q[k], qd[k], qdd[k])
-            self.world.step(1)
             self._steps += 1
+            fault = self._step()
+            if fault is not None:
+                self._protective_stop(fault)
         self._stop.clear()
         return q[-1]
+
+
+def _geom_name(model, geom_id: int) -> str:
+    """A geom's name, else its body's (unnamed geoms of a mesh decomposition)."""
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, int(geom_id))
+    if name:
+        return name
+    body = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(model.geom_bodyid[geom_id]))
+    return f"a geom of {body or 'the world'}"

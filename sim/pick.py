@@ -444,6 +444,8 @@ def run_episode(
             "sim_time_s": float(world.data.time) - t0_sim,
             "arm_sim_time_s": timing.sim_time_s,
             "arm_wall_time_s": timing.wall_time_s,
+            # the largest net contact force on the robot during its motions (`sim.arm`'s protective stop)
+            "arm_max_external_force_n": arm.max_external_force_n,
         }
         if out_dir is not None:
             out = Path(out_dir)

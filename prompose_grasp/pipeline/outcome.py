@@ -9,7 +9,15 @@ import numpy as np
 
 from prompose_grasp.errors import InvalidInputError
 
-__all__ = ["REASONS", "STAGES", "AttemptRecord", "PickOutcome", "ProgressEvent", "Reason"]
+__all__ = [
+    "DEVICE_FAULT_REASONS",
+    "REASONS",
+    "STAGES",
+    "AttemptRecord",
+    "PickOutcome",
+    "ProgressEvent",
+    "Reason",
+]
 
 #: Why a run ended. "success" is the only good one; the others say which stage gave up ("not_understood":
 #: the command text could not be parsed; the message says what was understood and gives examples).
@@ -17,6 +25,11 @@ __all__ = ["REASONS", "STAGES", "AttemptRecord", "PickOutcome", "ProgressEvent",
 #: describes each (colour, kind, where, size) and the outcome's `estimates` are theirs, best first.
 #: "wrong_object": after the lift, what is held is not the object named (another one fits the prompt
 #: clearly better); it was put back where it stood, and the message names both.
+#: Device faults (`robot.interfaces`), after the loop's stop path (the message says what it did and in what
+#: state it left the gripper): "protective_stop" (the controller's safety stopped the arm: a collision, a
+#: force limit), "emergency_stop" (nothing more was sent to the arm or the gripper), "connection_lost" (a
+#: device's link dropped; nothing more was sent to the arm), "motion_failed" (the controller refused or did
+#: not finish a move), "gripper_failed" (the gripper refused or did not finish a command).
 Reason = Literal[
     "success",
     "not_found",
@@ -29,8 +42,21 @@ Reason = Literal[
     "not_understood",
     "ambiguous",
     "wrong_object",
+    "protective_stop",
+    "emergency_stop",
+    "connection_lost",
+    "motion_failed",
+    "gripper_failed",
 ]
 REASONS: tuple[str, ...] = get_args(Reason)
+#: The reasons that are device faults (a run that ends in one needs a person at the cell).
+DEVICE_FAULT_REASONS: tuple[str, ...] = (
+    "protective_stop",
+    "emergency_stop",
+    "connection_lost",
+    "motion_failed",
+    "gripper_failed",
+)
 #: Stages a `ProgressEvent` can name, in the order a run goes through them.
 STAGES: tuple[str, ...] = ("parse", "observe", "estimate", "plan", "execute", "verify", "place", "done")
 

@@ -26,6 +26,18 @@ Every expected failure ends the run with a typed reason (`PickOutcome.reason`) i
 | timeout | `PickConfig.timeout_s` passed (checked between stages; a running move is never cut) |
 | ambiguous | several objects fit the prompt about equally well and the command names one: nothing moved |
 | wrong_object | after the lift a standing object fits the prompt clearly better: the held one was put back |
+| protective_stop | the arm (or its controller) raised `ProtectiveStopError` (a collision, a force limit) |
+| emergency_stop | the arm raised `EmergencyStopError` (an e-stop) |
+| connection_lost | a device raised `ConnectionLostError` (its link dropped) |
+| motion_failed | the arm raised `MotionFailedError` (the controller refused or did not finish a move) |
+| gripper_failed | the gripper raised `GripperError` (it refused or did not finish a command) |
+
+A device fault ends the run at once, after the stop path (`_stop_after_fault`): after an e-stop or a lost
+link nothing more is sent to the arm (an e-stopped controller takes no motion, a person may be at the cell,
+and a dropped link may not carry a command); after the other faults the arm is told to stop. The gripper is
+opened only where that cannot drop anything: closed on an object that still rests on its support (before the
+lift) it is opened (not after an e-stop); closed on an object that may be in the air it stays closed, and the
+outcome's message says so, as it says every state it leaves the gripper in.
 
 Which object: the estimator's candidates for the prompt whose grounding score is within `candidate_ratio` of
 the best are all "the object" (identical cartons on a pallet); with `candidate_order="top_first"` (default)
@@ -43,6 +55,15 @@ camera must no longer see the object where it stood, nor see it hang from the ja
 support (it rose less than half the lift and some of its seen points lie on the support: a pan held by the
 far side of its rim, its handle on the table). A grasp whose approach or lift line would flip a wrist
 on the way (IK every 5 mm, seeded with the last) is skipped before anything moves.
+
+Verification fails closed. Every frame must have the image size and intrinsics of its camera's first frame of
+the run (a camera that changes mode mid-run), and a re-observation frame must have depth readings on at least
+half the pixels the pick's view had them on, in the object's projected box (`_depth_gone`: a dropout): a
+frame that fails is captured again, `camera_retries` times in all; then a lifted object is set down where it
+was picked (`_set_down`) and the run ends "camera_failed". A re-observation that finds no object is judged on
+the raw depth where the object stood (`_vacated`): still reading its surface is "slipped", no longer reading
+it (seen past it, or the hand in front) is a lift, too few readings there is no evidence ("camera_failed",
+set down).
 
 No wrong-object success: after the lift (pick and place alike) the prompt is estimated again; the candidate
 nearest the tcp and risen from where the object stood is what is held. When another candidate, standing where
@@ -88,7 +109,7 @@ from prompose_grasp.errors import (
     UnreachableError,
     UnsafeCommandError,
 )
-from prompose_grasp.geometry.pointcloud import back_project
+from prompose_grasp.geometry.pointcloud import back_project, valid_depth_mask
 from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.geometry.se3 import invert_T, transform_points
 from prompose_grasp.grasp import (
@@ -119,7 +140,14 @@ from prompose_grasp.pipeline.describe import (
     prompt_colour,
 )
 from prompose_grasp.pipeline.outcome import AttemptRecord, PickOutcome, ProgressEvent
-from prompose_grasp.robot.interfaces import RGBDFrame
+from prompose_grasp.robot.interfaces import (
+    ConnectionLostError,
+    EmergencyStopError,
+    GripperError,
+    MotionFailedError,
+    RGBDFrame,
+    SafetyStopError,
+)
 from prompose_grasp.robot.validator import CommandValidator, ValidatorConfig
 
 __all__ = ["PickAndPlace", "PickConfig"]
@@ -281,6 +309,32 @@ class PickConfig:
 #: `PickConfig.candidate_order` choices.
 _CANDIDATE_ORDERS = ("top_first", "score")
 
+#: Device faults and the outcome each ends a run in, the first class that matches (an e-stop is a safety stop
+#: too; any other stop the controller's safety functions make is protective).
+_FAULTS: tuple[tuple[type[Exception], str], ...] = (
+    (EmergencyStopError, "emergency_stop"),
+    (SafetyStopError, "protective_stop"),
+    (ConnectionLostError, "connection_lost"),
+    (MotionFailedError, "motion_failed"),
+    (GripperError, "gripper_failed"),
+)
+_DEVICE_FAULTS: tuple[type[Exception], ...] = tuple(c for c, _ in _FAULTS)
+
+
+def _fault_reason(exc: BaseException) -> str:
+    """The outcome reason of a device fault (`_FAULTS`)."""
+    return next(reason for cls, reason in _FAULTS if isinstance(exc, cls))
+
+
+@dataclass
+class _Grip:
+    """What the loop last told the gripper, for the stop path after a device fault: `closed` from the first
+    close command on (a fault mid-close leaves the jaws closing) until it opens; `lifted` once an arm motion
+    started while closed (the object may be off its support, and opening would drop it)."""
+
+    closed: bool = False
+    lifted: bool = False
+
 
 class _Abort(Exception):
     """Ends a run with a typed reason (internal; never escapes `run`). `estimates` (camera frame of
@@ -380,6 +434,9 @@ class PickAndPlace:
         if not isinstance(chosen, CommandValidator):
             chosen = CommandValidator(ValidatorConfig.for_robot(robot_model), fk_tcp=robot_model.fk_tcp)
         self.validator: CommandValidator = chosen
+        self._grip = _Grip()  # what the gripper was last told (the stop path after a device fault)
+        self._modes: dict[int, tuple[float, ...]] = {}  # each camera's image size and intrinsics this run
+        self._last_raw_frame: RGBDFrame | None = None  # the last frame `_capture` took, robot included
 
     # ------------------------------------------------------------------------------------------------ run
     def run(self, command: str | Command) -> PickOutcome:
@@ -396,6 +453,9 @@ class PickAndPlace:
             "placed": [],  # ObjectModels of what this run put down (obstacles for the next place)
         }
         cmd: Command | None = None
+        self._grip = _Grip()
+        self._modes = {}
+        self._last_raw_frame = None
 
         def finish(reason: str, message: str) -> PickOutcome:
             timings["total"] = time.perf_counter() - t_start
@@ -440,6 +500,56 @@ class PickAndPlace:
             state["estimates"].extend(exc.estimates)
             state["T_base_cams"].extend([exc.T_base_cam] * len(exc.estimates))
             return finish(exc.reason, exc.message)
+        except _DEVICE_FAULTS as exc:
+            reason = _fault_reason(exc)
+            logger.error("device fault: %s: %s", type(exc).__name__, exc)
+            return finish(reason, self._stop_after_fault(reason, exc))
+
+    def _stop_after_fault(self, reason: str, exc: BaseException) -> str:
+        """The stop path after a device fault (see the module's docstring); returns the outcome's message: the
+        fault, what was sent after it, and the state the gripper is left in."""
+        notes = [str(exc)]
+        if reason in ("emergency_stop", "connection_lost"):
+            notes.append("nothing more was sent to the arm")
+        else:
+            try:
+                self.arm.stop()
+                notes.append("the arm was told to stop")
+            except Exception as stop_exc:  # the stop path goes on, and reports whatever the device raised
+                notes.append(f"the arm's stop command failed ({type(stop_exc).__name__}: {stop_exc})")
+        grip = self._grip
+        if not grip.closed:
+            notes.append("the gripper is open")
+        elif grip.lifted:
+            notes.append(
+                "the gripper is still closed on the object, which may be off its support (opening would "
+                "drop it): take hold of the object, then open the gripper"
+            )
+        elif reason == "emergency_stop":
+            notes.append("the gripper is still closed (nothing is sent after an e-stop): open it when safe")
+        else:
+            try:
+                self._open_jaws()
+                notes.append("the gripper was opened (the object rests on its support)")
+            except Exception as open_exc:  # as above
+                notes.append(
+                    f"the gripper is still closed: opening it failed ({type(open_exc).__name__}: {open_exc})"
+                )
+        return "; ".join(notes)
+
+    def _close_jaws(self) -> None:
+        """Close the gripper with the grip force (vacuum on), noting it for the stop path."""
+        self._grip = _Grip(closed=True)
+        self.gripper.close(self._grip_force())
+
+    def _open_jaws(self) -> None:
+        """Open the gripper fully (vacuum off), noting it for the stop path."""
+        self.gripper.open()
+        self._grip = _Grip()
+
+    def _moving_closed(self) -> None:
+        """An arm motion starts: with the gripper closed, the object may leave its support from now on."""
+        self._grip.lifted = self._grip.closed
 
     def _one_object(
         self,
@@ -508,7 +618,12 @@ class PickAndPlace:
         except (CommandNotUnderstood, InvalidInputError) as exc:
             raise _Abort("not_understood", str(exc)) from None
 
-    def _capture(self) -> RGBDFrame:
+    def _capture(self, check: Callable[[RGBDFrame], str | None] | None = None) -> RGBDFrame:
+        """The next frame the loop can trust, without the robot's own depth readings. A dropped frame, one
+        whose image size or intrinsics differ from this camera's first frame of the run (a camera that
+        changed mode mid-run: the hand-eye calibration and the depth registration hold for one), and one
+        that `check` (the raw frame -> why it cannot be trusted, or None) refuses are retried
+        `camera_retries` times in all, then "camera_failed"."""
         errors = []
         for _ in range(self.config.camera_retries):
             try:
@@ -521,6 +636,22 @@ class PickAndPlace:
                 raise _Abort("camera_failed", f"the camera returned {type(frame).__name__}, not an RGBDFrame")
             if frame.T_base_cam is None:
                 raise _Abort("camera_failed", "the frame has no T_base_cam: calibrate the camera to the base")
+            K = frame.intrinsics
+            mode = (float(K.width), float(K.height), K.fx, K.fy, K.cx, K.cy)
+            first = self._modes.setdefault(id(self.camera), mode)
+            why = None
+            if mode != first:
+                why = (
+                    f"the camera's image size and intrinsics changed mid-run (w, h, fx, fy, cx, cy "
+                    f"{_mode_text(first)} -> {_mode_text(mode)})"
+                )
+            elif check is not None:
+                why = check(frame)
+            if why is not None:
+                errors.append(why)
+                logger.warning("frame not trusted (%s); capturing again", why)
+                continue
+            self._last_raw_frame = frame
             return self._without_robot(frame)
         raise _Abort(
             "camera_failed",
@@ -546,6 +677,7 @@ class PickAndPlace:
         timings: dict[str, float],
         min_score_ratio: float | None = None,
         judge: bool = False,
+        check: Callable[[RGBDFrame], str | None] | None = None,
     ) -> tuple[RGBDFrame, list[Any]]:
         """Capture `observe_frames` frames and estimate the prompt: the candidates, best first (one with a
         tracker over several frames or an estimator without `estimate_all`). Nothing found is retried on
@@ -555,7 +687,7 @@ class PickAndPlace:
         refusal into a guess (the chance of a spurious clear winner grows with every frame asked)."""
         for k in range(self.config.camera_retries):
             try:
-                return self._estimates_once(prompt, timings, min_score_ratio, judge)
+                return self._estimates_once(prompt, timings, min_score_ratio, judge, check)
             except _Abort as exc:
                 if exc.reason != "not_found" or exc.judged or k + 1 == self.config.camera_retries:
                     raise
@@ -568,6 +700,7 @@ class PickAndPlace:
         timings: dict[str, float],
         min_score_ratio: float | None = None,
         judge: bool = False,
+        check: Callable[[RGBDFrame], str | None] | None = None,
     ) -> tuple[RGBDFrame, list[Any]]:
         """Capture and estimate; the candidates' estimates, best first (those scoring under `min_score_ratio`
         of the best are not fitted; `candidate_ratio` when None).
@@ -578,7 +711,7 @@ class PickAndPlace:
         ratio = self.config.candidate_ratio if min_score_ratio is None else min_score_ratio
         refused: AmbiguousObjectError | None = None
         t0 = time.perf_counter()
-        frames = [self._capture() for _ in range(self.config.observe_frames)]
+        frames = [self._capture(check) for _ in range(self.config.observe_frames)]
         timings["observe"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         try:
@@ -898,6 +1031,9 @@ class PickAndPlace:
                     width = self._pick_place(
                         obs, grasp, place_target, scene, held_scene, timings, state, n, cmd
                     )
+            except _DEVICE_FAULTS as exc:  # the run ends (`run`): the attempt says where the fault struck
+                state["attempts"].append(AttemptRecord(n, grasp, _fault_reason(exc), str(exc)))
+                raise
             except _Abort as exc:
                 state["attempts"].append(AttemptRecord(n, grasp, exc.reason, exc.message))
                 if exc.reason in ("timeout", "camera_failed", "wrong_object"):  # not another grasp of it
@@ -1171,8 +1307,9 @@ class PickAndPlace:
         if self.gripper_kind == "parallel_jaw" and callable(open_to) and grasp.opening_m > 0:
             stroke = float(getattr(self.gripper_geometry, "stroke_m", 0.085))
             open_to(min(stroke, float(grasp.opening_m)))
+            self._grip = _Grip()
         else:
-            self.gripper.open()
+            self._open_jaws()
 
     def _pick(self, grasp: Any, scene: CollisionScene, timings: dict[str, float]) -> float:
         cfg = self.config
@@ -1221,7 +1358,8 @@ class PickAndPlace:
                 "approach",
                 lambda: self.arm.move_linear(grasp.T_base_tcp, cfg.linear_speed_m_s, cfg.linear_accel_m_s2),
             )
-            self.gripper.close(self._grip_force())
+            self._close_jaws()
+            self._moving_closed()
             self._safe(
                 "lift",
                 lambda: self.arm.move_linear(
@@ -1272,7 +1410,7 @@ class PickAndPlace:
             logger.warning("could not return to the start configuration: %s", exc)
 
     def _release_and_back_off(self, grasp: Any) -> None:
-        self.gripper.open()
+        self._open_jaws()
         cfg = self.config
         try:
             self.arm.move_linear(grasp.T_base_retreat, cfg.linear_speed_m_s, cfg.linear_accel_m_s2)
@@ -1300,12 +1438,32 @@ class PickAndPlace:
         self._emit("verify", "re-observing", 0.8)
         before, support = obs.target, obs.support
         try:
-            # Every candidate: one that fits the prompt better may have scored under the ratio before.
-            frame, ests = self._estimates(cmd.object_prompt, timings, 0.0)
+            # Every candidate: one that fits the prompt better may have scored under the ratio before. A
+            # frame without depth where the object stood shows nothing about it (`_depth_gone`).
+            frame, ests = self._estimates(
+                cmd.object_prompt, timings, 0.0, check=functools.partial(_depth_gone, obs=obs)
+            )
         except _Abort as exc:
-            if exc.reason == "not_found":  # lifted out of view or hidden by the gripper: not where it stood
-                return
-            raise
+            if exc.reason == "camera_failed":  # no frame to judge the lift on: set it down, unverified
+                self._set_down(grasp, f"the lift could not be verified: {exc.message}")
+            if exc.reason != "not_found":
+                raise
+            # Nothing seen is no evidence by itself; the depth where the object stood is (the robot's own
+            # readings kept: a hand in front of that place is something there): read as it was, the object
+            # is still there; no longer (seen past it, or something in front: the hand, the object in it),
+            # it is not where it stood.
+            vacated = _vacated(self._last_raw_frame, obs)
+            if vacated is None:
+                self._set_down(
+                    grasp, "the lift could not be verified: the re-observation sees no object and too few "
+                    "depth readings where it stood",
+                )  # fmt: skip
+            if not vacated and slip_check:
+                self._open_jaws()
+                raise _Abort(
+                    "slipped", "no object seen, but the depth where it stood still reads its surface"
+                ) from None
+            return
         t0 = time.perf_counter()
         T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
         top_before = _top_height(before, support)
@@ -1330,11 +1488,11 @@ class PickAndPlace:
         state["estimates"].append(est)
         state["T_base_cams"].append(T_base_cam)
         if slip_check and moved < self.config.moved_min_m:
-            self.gripper.open()
+            self._open_jaws()
             raise _Abort("slipped", f"the object is still where it stood (moved {1e3 * moved:.0f} mm)")
         resting = self._resting_part(obs, grasp, ests, heights, T_base_cam) if slip_check else None
         if resting is not None:
-            self.gripper.open()
+            self._open_jaws()
             raise _Abort("slipped", resting)
         if wrong is not None:
             self._put_back(cmd, obs, grasp, frame, *wrong)
@@ -1468,6 +1626,23 @@ class PickAndPlace:
             return None
         return held, other, f"{100 * s_held:.0f} % {colour} pixels against {100 * s_other:.0f} %"
 
+    def _set_down(self, grasp: Any, why: str) -> None:
+        """Set a lifted object down where it was picked when the lift cannot be verified (the lift line back
+        down to the grasp pose, validated before it is sent, then open and back off), and end the attempt
+        "camera_failed" with `why`; when the way down is refused the object stays held, and the message says
+        so."""
+        cfg = self.config
+        try:
+            for T in (grasp.T_base_tcp, grasp.T_base_retreat):
+                self.validator.validate_linear_move(T, cfg.linear_speed_m_s, cfg.linear_accel_m_s2)
+            self.arm.move_linear(grasp.T_base_tcp, cfg.linear_speed_m_s, cfg.linear_accel_m_s2)
+        except (UnreachableError, UnsafeCommandError) as exc:
+            raise _Abort(
+                "camera_failed", f"{why}; it could not be set down ({exc}): the gripper still holds it"
+            ) from None
+        self._release_and_back_off(grasp)
+        raise _Abort("camera_failed", f"{why}; the object was set down where it was picked")
+
     def _put_back(
         self, cmd: Command, obs: _Observation, grasp: Any, frame: RGBDFrame, held: Any, other: Any, why: str
     ) -> None:
@@ -1548,9 +1723,10 @@ class PickAndPlace:
             self._open_for(grasp)
             for seg in motion.segments:
                 self._emit("place" if seg.holding else "execute", f"segment {seg.name}", 0.5, attempt)
+                self._moving_closed()
                 self._safe(seg.name, functools.partial(self.arm.follow, seg.trajectory))
                 if seg.name == "approach":
-                    self.gripper.close(self._grip_force())
+                    self._close_jaws()
                 elif seg.name == "lift":
                     timings["execute"] += time.perf_counter() - t0
                     width = self._verify_held(grasp, timings)
@@ -1560,7 +1736,7 @@ class PickAndPlace:
                     t0 = time.perf_counter()
                 elif seg.name == "descend":
                     if not self.gripper.grasp_detected():
-                        self.gripper.open()
+                        self._open_jaws()
                         raise _Abort("slipped", "the object was lost during the transfer")
                     self._open_for(grasp)
         finally:
@@ -1622,6 +1798,86 @@ _STOOD_MIN_POINTS = 20
 _COLOUR_ABSENT = 0.03
 #: ... while another candidate shows it on at least this share: that colour, not a printed detail [-].
 _COLOUR_SHOWN = 0.25
+
+
+#: A re-observation is trusted only with depth readings on at least this share of the pixels that had one
+#: where the object stood in the pick's view (the object's box, projected): the lifted object, the hand and
+#: the table behind them all give readings; a depth dropout (a sensor fault, a saturated projector) does not.
+_DEPTH_KEPT_SHARE = 0.5
+#: A depth reading within this of where the pick's view saw the object's surface is that surface (sensor
+#: noise at ~1 m is a few millimetres to 1 cm; a lifted object is at least 10 cm from where it stood) [m].
+_SAME_SURFACE_M = 0.02
+#: The object is still where it stood when at least this share of the readings there are its surface [-].
+_STILL_SHARE = 0.5
+
+
+def _mode_text(mode: tuple[float, ...]) -> str:
+    return "(" + ", ".join(f"{v:g}" for v in mode) + ")"
+
+
+def _box_window(frame: RGBDFrame, pose_base: Pose9D) -> tuple[int, int, int, int] | None:
+    """Pixel window (u0, u1, v0, v1), end-exclusive, of a box in base seen in `frame`: the bounds of its
+    projected corners, clipped to the image; None when a corner lies behind the camera or the window is
+    empty."""
+    T_cam_base = invert_T(np.asarray(frame.T_base_cam, dtype=np.float64))
+    X = transform_points(T_cam_base, pose_base.corners())
+    if np.any(X[:, 2] <= 0):
+        return None
+    K = frame.intrinsics
+    u = K.fx * X[:, 0] / X[:, 2] + K.cx
+    v = K.fy * X[:, 1] / X[:, 2] + K.cy
+    u0, u1 = max(0, math.floor(u.min())), min(K.width, math.ceil(u.max()) + 1)
+    v0, v1 = max(0, math.floor(v.min())), min(K.height, math.ceil(v.max()) + 1)
+    return None if u0 >= u1 or v0 >= v1 else (u0, u1, v0, v1)
+
+
+def _depth_gone(frame: RGBDFrame, obs: _Observation) -> str | None:
+    """Why a re-observation frame cannot be trusted about the object of `obs`, or None: where the object stood
+    (its box, projected), it has depth readings on fewer than `_DEPTH_KEPT_SHARE` of the pixels the pick's
+    view had them on."""
+    before_win, now_win = _box_window(obs.frame, obs.target.pose), _box_window(frame, obs.target.pose)
+    if before_win is None:
+        return None  # the pick's view did not hold the box: nothing to compare with
+    u0, u1, v0, v1 = before_win
+    had = int(np.count_nonzero(valid_depth_mask(obs.frame.depth_m[v0:v1, u0:u1])))
+    if had == 0:
+        return None
+    has = 0
+    if now_win is not None:
+        u0, u1, v0, v1 = now_win
+        has = int(np.count_nonzero(valid_depth_mask(frame.depth_m[v0:v1, u0:u1])))
+    if has >= _DEPTH_KEPT_SHARE * had:
+        return None
+    return f"the depth is gone where the object stood ({has} readings there, the pick's view had {had})"
+
+
+def _vacated(frame: RGBDFrame | None, obs: _Observation) -> bool | None:
+    """Does the depth of `frame` show that the object of `obs` left where it stood? The pick's observed points
+    of the object (inside its box, above the support, as `_stood_before`) are looked up in `frame`: True when
+    fewer than `_STILL_SHARE` of the readings there lie on its surface (within `_SAME_SURFACE_M`: seen past
+    it, or something in front of it); False when more do (it is still there); None when there are fewer
+    than `_STOOD_MIN_POINTS` readings to tell."""
+    if frame is None or frame.T_base_cam is None:
+        return None
+    P = obs.points_base
+    pose = obs.target.pose
+    local = (P - pose.t) @ pose.R
+    grow = _STOOD_MARGIN_M if obs.support is not None else 0.0
+    inside = np.all(np.abs(local) <= 0.5 * np.asarray(pose.size) + grow, axis=1)
+    if obs.support is not None:
+        inside &= P @ np.asarray(obs.support.normal) + obs.support.offset_m > _STOOD_MARGIN_M
+    X = transform_points(invert_T(np.asarray(frame.T_base_cam, dtype=np.float64)), P[inside])
+    X = X[X[:, 2] > 0]
+    K = frame.intrinsics
+    u = np.rint(K.fx * X[:, 0] / X[:, 2] + K.cx).astype(np.int64)
+    v = np.rint(K.fy * X[:, 1] / X[:, 2] + K.cy).astype(np.int64)
+    in_image = (u >= 0) & (u < K.width) & (v >= 0) & (v < K.height)
+    depth = frame.depth_m[v[in_image], u[in_image]]
+    read = valid_depth_mask(depth)
+    if int(np.count_nonzero(read)) < _STOOD_MIN_POINTS:
+        return None
+    still = np.abs(depth[read] - X[in_image][read, 2]) <= _SAME_SURFACE_M
+    return bool(np.mean(still) < _STILL_SHARE)
 
 
 def _aim_camera(T_base_tcp: np.ndarray, T_tcp_cam: np.ndarray, point: np.ndarray) -> np.ndarray:

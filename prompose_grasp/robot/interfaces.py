@@ -3,6 +3,12 @@
 `SimArm` (sim/), `URRtdeArm` (hardware/) and `FakeArm` (robot/fake.py) implement `Arm`; each runs every motion
 command through the shared `CommandValidator` before acting and returns the command it actually sent. All
 three devices are context managers: ``with arm: ...`` connects and always disconnects.
+
+A device that fails while in use raises one of the device faults defined here, whatever its backend (the UR
+adapter over RTDE, a Robotiq socket, the MuJoCo arm): `ProtectiveStopError` / `EmergencyStopError` (the
+controller's safety system stopped the arm), `ConnectionLostError` (the link dropped), `MotionFailedError`
+(the controller refused or did not finish a move), `GripperError` (the gripper refused or did not finish a
+command). `pipeline.PickAndPlace` ends a run on any of them with a typed outcome after its stop path.
 """
 
 from __future__ import annotations
@@ -15,11 +21,38 @@ from types import TracebackType
 import numpy as np
 from numpy.typing import ArrayLike
 
-from prompose_grasp.errors import DeviceNotConnectedError, InvalidInputError
+from prompose_grasp.errors import DeviceFault, DeviceNotConnectedError, InvalidInputError
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import check_depth_units
 from prompose_grasp.geometry.se3 import as_transform
 from prompose_grasp.robot.real_numbers import real_array
+
+
+class ConnectionLostError(DeviceFault, DeviceNotConnectedError):
+    """The link to a device dropped while it was in use. The adapter took its stop path (a stop command where
+    the control link still answered) and marked itself disconnected; `reconnect()` or `connect()` again."""
+
+
+class MotionFailedError(DeviceFault):
+    """The controller refused a move, never started it, or did not finish it in time; the adapter sent a
+    stop. The link is still up (check the pendant for the reason: a program running, a mode change)."""
+
+
+class SafetyStopError(DeviceFault):
+    """The controller stopped the arm on its own (a safety function). Nothing more is sent until it is
+    cleared on the teach pendant; then call `reconnect()`."""
+
+
+class ProtectiveStopError(SafetyStopError):
+    """Protective stop (a collision, a force limit, a safeguard input)."""
+
+
+class EmergencyStopError(SafetyStopError):
+    """Emergency stop (an e-stop button or the safety system)."""
+
+
+class GripperError(DeviceFault):
+    """A gripper refused a command, answered something unexpected, or did not finish in time."""
 
 
 @dataclass(frozen=True)

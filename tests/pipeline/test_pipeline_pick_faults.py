@@ -309,7 +309,7 @@ def test_a_grasp_whose_approach_line_flips_a_wrist_is_not_continuous():
     assert not PickAndPlace._lines_continuous(SimpleNamespace(robot=_JumpyRobot()), grasp)
 
 
-def test_reasons_are_the_issue_list_plus_not_understood_ambiguous_and_wrong_object():
+def test_reasons_are_the_issue_list_plus_not_understood_ambiguous_wrong_object_and_device_faults():
     assert REASONS == (
         "success",
         "not_found",
@@ -322,6 +322,11 @@ def test_reasons_are_the_issue_list_plus_not_understood_ambiguous_and_wrong_obje
         "not_understood",
         "ambiguous",
         "wrong_object",
+        "protective_stop",
+        "emergency_stop",
+        "connection_lost",
+        "motion_failed",
+        "gripper_failed",
     )
     for reason in REASONS:  # every reason makes an outcome and its JSON summary
         assert PickOutcome(reason, "m").to_dict()["reason"] == reason
