@@ -36,7 +36,7 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -46,15 +46,12 @@ from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pointcloud import outline_corrected_points, valid_depth_mask
 from prompose_grasp.geometry.se3 import invert_T, so3_exp, so3_log
-from prompose_grasp.perception.estimator import Estimate, plane_vector
-from prompose_grasp.perception.fit import FitResult, SceneView, fit_pose, protrusion_points
-from prompose_grasp.perception.grounding import SupportPlane
+from prompose_grasp.perception.estimate import Estimate, plane_vector
+from prompose_grasp.perception.fit import FitConfig, FitResult, SceneView, fit_pose, protrusion_points
+from prompose_grasp.perception.grounding import Grounder, SupportPlane
 from prompose_grasp.perception.priors import ShapePrior
 from prompose_grasp.perception.priors.library import round_body_axis
 from prompose_grasp.robot.interfaces import RGBDFrame
-
-if TYPE_CHECKING:
-    from prompose_grasp.perception.estimator import ProMPose
 
 __all__ = ["Tracker", "TrackerConfig"]
 
@@ -162,6 +159,24 @@ def _blend(pred: Pose9D, meas: Pose9D, w: float) -> Pose9D:
     return Pose9D(R, (1.0 - w) * pred.t + w * meas.t, size)
 
 
+class FrameEstimator(Protocol):
+    """What the tracker asks of the single-frame estimator (`ProMPose` is one): a (re)started track's
+    estimate, the fit settings the windowed re-fits share, the grounder for re-detection, the size bound of
+    an object and the object's points under a mask. Given explicitly so that the tracker does not import the
+    facade that builds it."""
+
+    grounder: Grounder
+    fit_config: FitConfig
+
+    def estimate(
+        self, frame: RGBDFrame, prompt: str, prior: ShapePrior | None = None, mask: np.ndarray | None = None
+    ) -> Estimate: ...
+
+    def too_large(self, pose: Pose9D) -> bool: ...
+
+    def object_points(self, frame: RGBDFrame, mask: np.ndarray) -> np.ndarray: ...
+
+
 class Tracker:
     """Frame-to-frame 9-DoF tracking of one object named by a prompt. Use through `ProMPose.track`.
 
@@ -170,7 +185,7 @@ class Tracker:
 
     def __init__(
         self,
-        estimator: ProMPose,
+        estimator: FrameEstimator,
         prompt: str,
         prior: ShapePrior | None = None,
         config: TrackerConfig | None = None,

@@ -19,7 +19,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 
@@ -32,9 +32,7 @@ from prompose_grasp.robot.kinematics import (
     rotation_distance,
     wrap_to_pi,
 )
-
-if TYPE_CHECKING:
-    from prompose_grasp.robot.model import RobotModel
+from prompose_grasp.robot.ur_models import URSpec
 
 logger = logging.getLogger(__name__)
 
@@ -119,12 +117,33 @@ def pose_errors(T_reached: np.ndarray, T_target: np.ndarray) -> tuple[float, flo
     )
 
 
-class _Solve:
+class IKArm(Protocol):
+    """What the solvers need of an arm model (`RobotModel` is one): its kinematic table, joint limits and
+    names, the support-plane check, and the Pinocchio / MuJoCo models the iterative methods run on. The
+    solvers are functions of such a model; the model module calls them, never the reverse."""
+
+    spec: URSpec
+    joint_names: tuple[str, ...]
+
+    @property
+    def joint_limits(self) -> tuple[np.ndarray, np.ndarray]: ...
+
+    @property
+    def pin_model(self) -> Any: ...
+
+    @property
+    def mj_model_with_plane(self) -> Any: ...
+
+    @property
+    def plane_checked_geoms(self) -> tuple[str, ...]: ...
+
+    def clears_support(self, q: np.ndarray, config: IKConfig) -> bool: ...
+
+
+class IKProblem:
     """Bookkeeping shared by the methods: target in flange terms, seed, limits, and the final result."""
 
-    def __init__(
-        self, robot: RobotModel, T_base_flange_target: np.ndarray, q_seed: np.ndarray, config: IKConfig
-    ):
+    def __init__(self, robot: IKArm, T_base_flange_target: np.ndarray, q_seed: np.ndarray, config: IKConfig):
         self.robot = robot
         self.T_target = T_base_flange_target
         self.q_seed = q_seed
@@ -186,7 +205,7 @@ class _Solve:
         return moved[0] if len(moved) else q
 
 
-def solve_closed_form(solve: _Solve) -> IKResult:
+def solve_closed_form(solve: IKProblem) -> IKResult:
     candidates = solve.closed_form_candidates()
     if len(candidates) == 0:
         branches = ik_branches(solve.robot.spec, solve.T_target)
@@ -205,7 +224,7 @@ def solve_closed_form(solve: _Solve) -> IKResult:
 class MinkIK:
     """mink differential IK on the arm's MuJoCo model (daqp; joint limits; support-plane avoidance)."""
 
-    def __init__(self, robot: RobotModel):
+    def __init__(self, robot: IKArm):
         import mink
         import mujoco
 
@@ -235,7 +254,7 @@ class MinkIK:
             limits.append(self.collision_limit)
         return limits
 
-    def solve(self, solve: _Solve) -> IKResult:
+    def solve(self, solve: IKProblem) -> IKResult:
         cfg = solve.config
         self.task.lm_damping = cfg.lm_damping
         self.task.set_target(self._mink.SE3.from_matrix(solve.T_target))
@@ -252,7 +271,7 @@ class MinkIK:
                 best_q, best_err = q, pos + rot
         return solve.result(best_q, total_iterations, "mink")
 
-    def _descend(self, seed: np.ndarray, solve: _Solve, limits: list) -> tuple[np.ndarray, int, float]:
+    def _descend(self, seed: np.ndarray, solve: IKProblem, limits: list) -> tuple[np.ndarray, int, float]:
         conf, cfg = self.configuration, solve.config
         conf.update(np.clip(seed, solve.lower, solve.upper))
         data = conf.data
@@ -277,7 +296,7 @@ class MinkIK:
 class PinocchioCLIK:
     """Closed-loop IK on the Pinocchio model: damped Gauss-Newton on log6(oMf^-1 oMdes), clipped to limits."""
 
-    def __init__(self, robot: RobotModel):
+    def __init__(self, robot: IKArm):
         import pinocchio as pin
 
         self.pin = pin
@@ -286,7 +305,7 @@ class PinocchioCLIK:
         self.data = self.model.createData()
         self.frame_id = self.model.getFrameId("flange")
 
-    def solve(self, solve: _Solve) -> IKResult:
+    def solve(self, solve: IKProblem) -> IKResult:
         pin, cfg = self.pin, solve.config
         oMdes = pin.SE3(solve.T_target[:3, :3], solve.T_target[:3, 3])
         best_q, best_err, total_iterations = solve.q_seed, np.inf, 0
@@ -335,7 +354,7 @@ def check_method(method: str) -> str:
     return method
 
 
-def batch_fk_errors(robot: RobotModel, Q: np.ndarray, T_targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def batch_fk_errors(robot: IKArm, Q: np.ndarray, T_targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Position [m] and rotation [rad] errors (N,) of configurations Q (N, 6) vs flange targets (N, 4, 4)."""
     T = fk_batch(robot.spec, Q)
     return (

@@ -243,7 +243,7 @@ class RobotModel:
         t0 = time.perf_counter()
         _ik.check_method(method)
         seed = np.zeros(6) if q_seed is None else self._q(q_seed, "q_seed")
-        solve = _ik._Solve(self, self._target_flange(T_base_target, frame), seed, config or self.ik_config)
+        solve = _ik.IKProblem(self, self._target_flange(T_base_target, frame), seed, config or self.ik_config)
         if method == "closed_form":
             result = _ik.solve_closed_form(solve)
         else:
