@@ -115,6 +115,15 @@ class ParallelJawGeometry:
             raise InvalidInputError("ParallelJawGeometry: the pad cannot be longer than the finger")
 
     @property
+    def pad_depth_m(self) -> float:
+        """Length of a pad along the approach (tcp z) [m]."""
+        return float(self.pad_size_m[2])
+
+    def holding_force_n(self, jaw_force_n: float) -> float:
+        """The force the gripper closes with: the jaw force per finger asked for [N]."""
+        return float(jaw_force_n)
+
+    @property
     def tcp_z_m(self) -> float:
         """Distance from the flange to the tcp (centre of the pads) along flange z [m]."""
         return self.palm_z_m + self.finger_length_m - self.pad_size_m[2] / 2.0
@@ -234,6 +243,11 @@ class SuctionCupGeometry:
         values.append(self.max_force_n)
         if not all(math.isfinite(v) and v > 0 for v in values):
             raise InvalidInputError(f"SuctionCupGeometry dimensions must be finite and > 0, got {self}")
+
+    def holding_force_n(self, jaw_force_n: float) -> float:
+        """The force the gripper closes with: the cup's full `max_force_n` (vacuum on; a jaw force does not
+        apply) [N]."""
+        return float(self.max_force_n)
 
     @property
     def tcp_z_m(self) -> float:

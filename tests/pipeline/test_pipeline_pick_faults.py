@@ -23,9 +23,11 @@ from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.se3 import invert_T, make_T
 from prompose_grasp.grasp import ParallelJawGeometry
+from prompose_grasp.grasp.refine import lines_continuous
 from prompose_grasp.pipeline.command import Command
 from prompose_grasp.pipeline.outcome import REASONS, STAGES, PickOutcome
 from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
+from prompose_grasp.pipeline.wrist_look import wrist_mount
 from prompose_grasp.robot import FakeArm, FakeGripper, RGBDFrame, load_robot
 
 JAW = ParallelJawGeometry()
@@ -303,10 +305,10 @@ class _JumpyRobot:
 def test_a_grasp_whose_approach_line_flips_a_wrist_is_not_continuous():
     outcome, _ = _run()
     grasp = outcome.grasp  # a top-down grasp on the box (tcp at z ~ 0.03 m), approached from 10 cm above
-    assert PickAndPlace._lines_continuous(SimpleNamespace(robot=ROBOT), grasp)
+    assert lines_continuous(ROBOT, grasp)
     # The same lines with IK that jumps 0.5 rad (> the 0.2 rad the check allows between 5 mm steps) below
     # 5 cm: the approach crosses z = 0.05 m, so it is refused.
-    assert not PickAndPlace._lines_continuous(SimpleNamespace(robot=_JumpyRobot()), grasp)
+    assert not lines_continuous(_JumpyRobot(), grasp)
 
 
 def test_reasons_are_the_issue_list_plus_not_understood_ambiguous_wrong_object_and_device_faults():
@@ -335,7 +337,7 @@ def test_reasons_are_the_issue_list_plus_not_understood_ambiguous_wrong_object_a
 def test_aim_camera_puts_the_target_on_the_optical_axis():
     from scipy.spatial.transform import Rotation
 
-    from prompose_grasp.pipeline.pick_and_place import _aim_camera
+    from prompose_grasp.pipeline.wrist_look import aim_camera
 
     rng = np.random.default_rng(3)
     for _ in range(20):
@@ -343,7 +345,7 @@ def test_aim_camera_puts_the_target_on_the_optical_axis():
         # A camera beside the tool (as the wrist camera: 7 cm off the axis), turned a little.
         T_tcp_cam = make_T(Rotation.from_rotvec(rng.normal(0, 0.2, 3)).as_matrix(), [0.0, 0.07, -0.12])
         point = rng.uniform(-0.5, 0.5, 3)
-        T = _aim_camera(T_tcp, T_tcp_cam, point)
+        T = aim_camera(T_tcp, T_tcp_cam, point)
         np.testing.assert_array_equal(T[:3, :3], T_tcp[:3, :3])  # the orientation is kept
         cam = T @ T_tcp_cam
         d = point - cam[:3, 3]
@@ -375,11 +377,11 @@ def test_the_wrist_camera_mount_is_learned_from_one_capture(fail):
             arm, gripper, Camera(), OracleEstimator(), ROBOT, "parallel_jaw", wrist_camera=wrist
         )
         if fail:  # a dropped frame: not learned now, no crash
-            assert pnp._wrist_mount() is None
+            assert wrist_mount(pnp.loop) is None
         # Learned from the frame's hand-eye pose and the joints (exact up to float64 FK round off) ...
-        np.testing.assert_allclose(pnp._wrist_mount(), T_flange_cam, atol=1e-12)
+        np.testing.assert_allclose(wrist_mount(pnp.loop), T_flange_cam, atol=1e-12)
         calls = wrist.calls
-        pnp._wrist_mount()
+        wrist_mount(pnp.loop)
         assert wrist.calls == calls  # ... once
 
 

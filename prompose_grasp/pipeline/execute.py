@@ -1,0 +1,164 @@
+"""Execute: one grasp, and for place commands its transfer and place. Every move passes the validator
+before the first is sent, so a plan the arm would refuse halfway is dropped before anything moves."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from prompose_grasp.errors import NoFeasibleMotion, NoFeasiblePlace, UnsafeCommandError
+from prompose_grasp.geometry.pose9d import Pose9D
+from prompose_grasp.geometry.se3 import invert_T
+from prompose_grasp.grasp import (
+    ObjectModel,
+    PlaceConfig,
+    PlaceTarget,
+    check_path,
+    plan_pick_place,
+    plan_place,
+)
+from prompose_grasp.grasp.motion import MotionConfig, free_move, timed_trajectory
+from prompose_grasp.grasp.scene import CollisionScene
+from prompose_grasp.grasp.types import Grasp
+from prompose_grasp.pipeline.command import Command
+from prompose_grasp.pipeline.hand import close_jaws, moving_closed, open_for, open_jaws, safe
+from prompose_grasp.pipeline.loop import Loop
+from prompose_grasp.pipeline.observe import Observation
+from prompose_grasp.pipeline.outcome import Reason
+from prompose_grasp.pipeline.plan import carried_target
+from prompose_grasp.pipeline.record import Abort, RunRecord
+from prompose_grasp.pipeline.verify import reobserve, verify_held
+
+__all__ = ["pick", "pick_place"]
+
+#: Place candidates examined (the planner's default 200 are all within ~0.3 m of the preferred point: a belt
+#: with one carton already at its centre had no free spot among them).
+_PLACE_CONFIG = PlaceConfig(max_candidates=2000)
+
+
+def pick(loop: Loop, run: RunRecord, grasp: Grasp, scene: CollisionScene) -> float:
+    """To the pre-grasp (a free joint move, or the grasp layer's detour when the direct line collides),
+    approach, close, lift; returns the jaw width after `verify_held` [m]."""
+    cfg = loop.config
+    with run.timed("execute"):
+        q_now = loop.joints()
+        ik = loop.robot.ik(grasp.T_base_pregrasp, q_seed=grasp.q, frame="tcp")
+        if not ik.success:
+            raise Abort("ik_failed", f"pre-grasp: {ik.message}")
+        grip = loop.gripper_geometry
+        W = np.array([q_now, ik.q])
+        _, hit = check_path(loop.robot, scene, W, grip, grasp.opening_m, True)
+        if hit is not None:
+            # The direct joint line collides: the grasp layer's detour (up, across, down), as for a place.
+            try:
+                W = free_move(
+                    loop.robot, scene, q_now, ik.q, grip, grasp.opening_m, None, None, MotionConfig(),
+                    invert_T(grip.T_flange_tcp), False,
+                )  # fmt: skip
+            except NoFeasibleMotion:
+                raise Abort("collision", f"path to the pre-grasp hits {hit.name}: {hit.reason}") from None
+        detour = timed_trajectory(loop.robot, W, MotionConfig()) if len(W) > 2 else None
+        try:  # every move passes the validator before the first is sent
+            if detour is not None:
+                loop.validator.validate_trajectory(detour, q_now)
+            else:
+                loop.validator.validate_joint_move(
+                    ik.q, cfg.joint_speed_rad_s, cfg.joint_accel_rad_s2, q_current=q_now
+                )
+            for T in (grasp.T_base_tcp, grasp.T_base_retreat):
+                loop.validator.validate_linear_move(T, cfg.linear_speed_m_s, cfg.linear_accel_m_s2)
+        except UnsafeCommandError as exc:
+            raise Abort("ik_failed", f"the pick would be refused by the validator: {exc}") from None
+        open_for(loop, run, grasp)
+        if detour is not None:
+            safe("to pre-grasp (detour)", functools.partial(loop.arm.follow, detour))
+        else:
+            safe(
+                "to pre-grasp",
+                lambda: loop.arm.move_joints(ik.q, cfg.joint_speed_rad_s, cfg.joint_accel_rad_s2),
+            )
+        safe(
+            "approach",
+            lambda: loop.arm.move_linear(grasp.T_base_tcp, cfg.linear_speed_m_s, cfg.linear_accel_m_s2),
+        )
+        close_jaws(loop, run)
+        moving_closed(run)
+        safe(
+            "lift",
+            lambda: loop.arm.move_linear(grasp.T_base_retreat, cfg.linear_speed_m_s, cfg.linear_accel_m_s2),
+        )
+    return verify_held(loop, run, grasp)
+
+
+def pick_place(
+    loop: Loop,
+    run: RunRecord,
+    obs: Observation,
+    grasp: Grasp,
+    target: PlaceTarget,
+    scene: CollisionScene,
+    held_scene: CollisionScene,
+    attempt: int,
+    cmd: Command,
+) -> float:
+    """Plan the place and the whole motion (pick, transfer, place), validate every segment, then run it:
+    after the lift the grip is verified and the held object checked (`reobserve` without the slip check: a
+    slip shows at the descent); returns the jaw width [m]."""
+    q_now = loop.joints()
+    carried = carried_target(loop, obs)
+    with run.timed("plan"):
+        try:
+            place = plan_place(
+                carried,
+                grasp,
+                target,
+                loop.robot,
+                loop.gripper_geometry,
+                obstacles=tuple(run.placed),
+                q_seed=grasp.q,
+                config=_PLACE_CONFIG,
+                scene=held_scene,
+            )
+            motion = plan_pick_place(
+                loop.robot, grasp, place, carried, scene, held_scene, loop.gripper_geometry, q_now
+            )
+        except NoFeasiblePlace as exc:  # the cause, when there is one: e.g. the pallet pattern's misfit
+            cause = f" ({exc.__cause__})" if exc.__cause__ is not None else ""
+            raise Abort("no_feasible_grasp", f"{exc}{cause}") from None
+        except NoFeasibleMotion as exc:
+            reason: Reason = "ik_failed" if "IK" in exc.reason else "collision"
+            raise Abort(reason, str(exc)) from None
+    q = q_now
+    for seg in motion.segments:  # the whole motion passes the validator before anything moves
+        try:
+            loop.validator.validate_trajectory(seg.trajectory, q)
+        except UnsafeCommandError as exc:
+            raise Abort("ik_failed", f"{seg.name} would be refused by the validator: {exc}") from None
+        q = np.asarray(seg.trajectory.q[-1], dtype=np.float64)
+    run.place = place
+    width = 0.0
+    with run.timed("execute"):
+        open_for(loop, run, grasp)
+    for seg in motion.segments:
+        with run.timed("execute"):
+            loop.emit("place" if seg.holding else "execute", f"segment {seg.name}", 0.5, attempt)
+            moving_closed(run)
+            safe(seg.name, functools.partial(loop.arm.follow, seg.trajectory))
+            if seg.name == "approach":
+                close_jaws(loop, run)
+            elif seg.name == "descend":
+                if not loop.gripper.grasp_detected():
+                    open_jaws(loop, run)
+                    raise Abort("slipped", "the object was lost during the transfer")
+                open_for(loop, run, grasp)
+        if seg.name == "lift":
+            width = verify_held(loop, run, grasp)
+            # Held is the object named? (a slip shows at the descent: no slip check here)
+            reobserve(loop, run, cmd, obs, grasp, slip_check=False)
+    placed = ObjectModel(
+        f"placed {len(run.placed) + 1}",
+        Pose9D(place.T_base_obj[:3, :3], place.T_base_obj[:3, 3], carried.pose.size),
+    )
+    run.placed.append(placed)
+    return width
