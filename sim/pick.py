@@ -12,7 +12,7 @@ camera frame, timings, sim time), `DIR/overlay_0.png` (the estimate in green, gr
 
 from __future__ import annotations
 
-import contextlib
+import dataclasses
 import json
 import logging
 import numbers
@@ -27,12 +27,11 @@ import numpy as np
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry.se3 import invert_T
-from prompose_grasp.grasp import PalletPattern, PlaceTarget
+from prompose_grasp.grasp import PalletPattern
+from prompose_grasp.pipeline.cell import make_cell
 from prompose_grasp.pipeline.outcome import PickOutcome, ProgressEvent
 from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
-from sim.arm import SimArm
-from sim.camera import SimCamera
-from sim.grippers import ParallelJawGripper, SuctionGripper
+from sim.cell import SimCellConfig, place_targets_of
 from sim.scene_file import build_scene, load_scene
 
 __all__ = ["EpisodeResult", "evaluate_target", "place_targets_of", "run_episode", "target_name_for"]
@@ -50,28 +49,6 @@ class EpisodeResult:
     outcome: PickOutcome
     summary: dict[str, Any]
     out_dir: Path | None
-
-
-def place_targets_of(world, patterns: dict[str, PalletPattern] | None = None) -> dict[str, PlaceTarget]:
-    """The scene's place targets as the library's `PlaceTarget`s in the arm's base frame (scene layout: what a
-    user measures once when setting up a cell, not a perception result); `patterns` {place target name:
-    `PalletPattern`} for pallets (the scene file's `pattern`)."""
-    T_base_world = invert_T(world.T_world_base)
-    kinds = {"bin": "bin", "table": "surface", "conveyor": "surface", "pallet": "pallet"}
-    out: dict[str, PlaceTarget] = {}
-    for support in world.place_targets.values():
-        kind = kinds.get(support.kind)
-        if kind is None or support.kind in out:
-            continue
-        name = next(n for n, s in world.place_targets.items() if s is support)
-        out[support.kind] = PlaceTarget(
-            kind,
-            T_base_world @ support.T_world_surface,
-            support.half_extents_xy_m,
-            float(support.wall_height_m),
-            (patterns or {}).get(name) if kind == "pallet" else None,
-        )
-    return out
 
 
 def _target_name(
@@ -302,30 +279,21 @@ def run_episode(
         if info is None or info.gripper is None:
             raise InvalidInputError(f"scene {scene} has no robot with a gripper")
         rng = np.random.default_rng(seed)
-        sim_cam = SimCamera(world, camera, rng=rng)
         mounted = [c["name"] for c in spec.cameras if "mount" in c]
-        wrist_cam = SimCamera(world, mounted[0], rng=rng) if (wrist and mounted) else None
-        gripper = ParallelJawGripper(world) if info.gripper == "parallel_jaw" else SuctionGripper(world)
-        arm = SimArm(world)
+        cell = make_cell(
+            SimCellConfig(world, camera, rng, mounted[0] if (wrist and mounted) else None, _patterns(spec))
+        )
+        arm = cell.arm  # a `SimArm`: its timing and contact forces go into the summary
         recorder = _Recorder(world, camera) if video else None
         start = {o.name: world.T_world_obj(o.name) for o in world.objects}
         t0_sim = float(world.data.time)
-        with arm, gripper, sim_cam, wrist_cam if wrist_cam is not None else contextlib.nullcontext():
+        with cell:
+            sim_cam = cell.camera
             keeper = _KeepFrames(camera_wrapper(sim_cam) if camera_wrapper is not None else sim_cam)
-            cam = keeper
             loop_estimator = estimator if estimator_wrapper is None else estimator_wrapper(world, camera)
-            pnp = PickAndPlace(
-                arm,
-                gripper,
-                cam,
-                loop_estimator,
-                info.robot,
-                info.gripper,
-                place_targets=place_targets_of(world, _patterns(spec)),
-                config=config,
-                on_event=on_event,
-                wrist_camera=wrist_cam,
-            )
+            # the loop observes through `keeper` (the frames it saw are kept for the summary's overlays)
+            loop_cell = dataclasses.replace(cell, camera=keeper)
+            pnp = PickAndPlace.for_cell(loop_cell, loop_estimator, config=config, on_event=on_event)
             if recorder is not None:
                 world.add_step_hook(recorder)
             outcome = pnp.run(command)

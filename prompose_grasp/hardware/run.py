@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike
 
 from prompose_grasp.errors import InvalidInputError, UnknownNameError
 from prompose_grasp.grasp import get_gripper
+from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry
 from prompose_grasp.hardware.calibration import load_calibration
 from prompose_grasp.hardware.cameras import (
     AzureKinectCamera,
@@ -38,6 +39,7 @@ from prompose_grasp.hardware.places import load_place_targets
 from prompose_grasp.hardware.robotiq import ROBOTIQ_PORT, RobotiqGripper
 from prompose_grasp.hardware.suction import IOSuctionGripper
 from prompose_grasp.hardware.ur_rtde import RtdeLinks, URRtdeArm, URRtdeConfig, URRtdeLinks
+from prompose_grasp.pipeline.cell import Cell, CellConfig, make_cell, register_cell
 from prompose_grasp.pipeline.outcome import PickOutcome, ProgressEvent
 from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
 from prompose_grasp.robot.fake import HOME_Q, FakeArm
@@ -55,10 +57,12 @@ __all__ = [
     "GRIPPERS",
     "CellSpec",
     "DryRunGripper",
+    "HardwareCellConfig",
     "RecordingArm",
     "RecordingGripper",
     "RunResult",
     "build_camera",
+    "build_hardware_cell",
     "run_command",
 ]
 
@@ -279,6 +283,70 @@ def _current_q(host: str, links: Any = None) -> np.ndarray:
         receive.disconnect()
 
 
+@dataclass(frozen=True, eq=False)
+class HardwareCellConfig(CellConfig):
+    """The real cell `spec` describes (or its dry run), for the cell factory (`pipeline.make_cell`).
+
+    Attributes:
+        spec: what is attached (`CellSpec`).
+        q_start: dry run only: start here instead of reading the arm (or `HOME_Q` without a host).
+        robot_model: override the model built from `spec.robot` and the gripper's TCP.
+        links: the RTDE link factory (default: the real ur_rtde, `URRtdeLinks`).
+        robotiq_port: the Robotiq URCap's port on the controller.
+    """
+
+    spec: CellSpec
+    q_start: ArrayLike | None = None
+    robot_model: RobotModel | None = None
+    links: RtdeLinks | None = None
+    robotiq_port: int = ROBOTIQ_PORT
+
+
+@register_cell(HardwareCellConfig)
+def build_hardware_cell(config: HardwareCellConfig) -> Cell:
+    """The arm (UR over RTDE, or a `FakeArm` for a dry run), the gripper, the calibrated camera and the place
+    targets of `config.spec`; arm and gripper record every command (`RecordingArm.log`, `.sent`)."""
+    spec = config.spec
+    calibration = load_calibration(spec.calibration)
+    place_targets = load_place_targets(spec.places) if spec.places is not None else {}
+    kind = GRIPPERS[spec.gripper]
+    geometry = get_gripper(kind)
+    robot = config.robot_model or load_robot(spec.robot, tcp_offset=geometry.T_flange_tcp)
+    log: list[str] = []
+    if spec.dry_run:
+        q_start = config.q_start
+        if q_start is None:
+            q_start = _current_q(spec.host, config.links) if spec.host else HOME_Q
+        inner_arm: Arm = FakeArm(robot, q_initial=q_start)
+        max_w = geometry.stroke_m if isinstance(geometry, ParallelJawGeometry) else 0.0
+        inner_gripper: Gripper = DryRunGripper(kind, max_w, held_width_m=0.5 * max_w)
+    else:
+        assert spec.host is not None
+        suction = isinstance(geometry, SuctionCupGeometry)
+        ur = URRtdeArm(spec.host, robot, config=URRtdeConfig(use_io=suction), links=config.links)
+        inner_arm = ur
+        inner_gripper = IOSuctionGripper(ur) if suction else RobotiqGripper(spec.host, config.robotiq_port)
+    camera = CalibratedCamera(
+        build_camera(spec.camera), calibration, T_base_flange=lambda: robot.fk(inner_arm.joint_positions())
+    )
+    logger.info(
+        "cell: %s with %s, camera %s (%s), place targets: %s",
+        robot.name,
+        spec.gripper,
+        spec.camera,
+        calibration.key,
+        ", ".join(place_targets) or "none",
+    )
+    return Cell(
+        RecordingArm(inner_arm, log),
+        RecordingGripper(inner_gripper, log),
+        camera,
+        robot,
+        geometry,
+        place_targets,
+    )
+
+
 def run_command(
     spec: CellSpec,
     command: str,
@@ -295,53 +363,18 @@ def run_command(
     Args:
         estimator: default `ProMPose.default()`.
         config: `PickConfig` (a dry run turns `reobserve` off).
-        q_start: dry run only: start here instead of reading the arm (or `HOME_Q` without a host).
-        robot_model: override the model built from `spec.robot` and the gripper's TCP.
-        links: the RTDE link factory (default: the real ur_rtde, `URRtdeLinks`).
-        robotiq_port: the Robotiq URCap's port on the controller.
+        q_start, robot_model, links, robotiq_port: as `HardwareCellConfig`.
     """
     from prompose_grasp.perception.estimator import ProMPose
 
-    calibration = load_calibration(spec.calibration)
-    place_targets = load_place_targets(spec.places) if spec.places is not None else {}
-    kind = GRIPPERS[spec.gripper]
-    geometry = get_gripper(kind)
-    robot = robot_model or load_robot(spec.robot, tcp_offset=geometry.T_flange_tcp)
-    log: list[str] = []
+    cell = make_cell(HardwareCellConfig(spec, q_start, robot_model, links, robotiq_port))
     config = config or PickConfig()
     if spec.dry_run:
         config = replace(config, reobserve=False)
-        if q_start is None:
-            q_start = _current_q(spec.host, links) if spec.host else HOME_Q
-        inner_arm: Arm = FakeArm(robot, q_initial=q_start)
-        max_w = float(getattr(geometry, "stroke_m", 0.0))
-        inner_gripper: Gripper = DryRunGripper(kind, max_w, held_width_m=0.5 * max_w)
-    else:
-        assert spec.host is not None
-        ur = URRtdeArm(spec.host, robot, config=URRtdeConfig(use_io=kind == "suction"), links=links)
-        inner_arm = ur
-        inner_gripper = (
-            RobotiqGripper(spec.host, robotiq_port) if kind == "parallel_jaw" else IOSuctionGripper(ur)
-        )
-    arm = RecordingArm(inner_arm, log)
-    gripper = RecordingGripper(inner_gripper, log)
-    camera = CalibratedCamera(
-        build_camera(spec.camera), calibration, T_base_flange=lambda: robot.fk(inner_arm.joint_positions())
-    )
     estimator = estimator or ProMPose.default()
-    logger.info(
-        "%s %r on %s with %s, camera %s (%s), place targets: %s",
-        "dry run of" if spec.dry_run else "running",
-        command,
-        robot.name,
-        spec.gripper,
-        spec.camera,
-        calibration.key,
-        ", ".join(place_targets) or "none",
-    )
-    with arm, gripper, camera:
-        pnp = PickAndPlace(
-            arm, gripper, camera, estimator, robot, kind, place_targets, config=config, on_event=on_event
-        )
-        outcome = pnp.run(command)
-    return RunResult(outcome, tuple(log), tuple(arm.sent), spec.dry_run)
+    logger.info("%s %r", "dry run of" if spec.dry_run else "running", command)
+    arm = cell.arm
+    assert isinstance(arm, RecordingArm)
+    with cell:
+        outcome = PickAndPlace.for_cell(cell, estimator, config=config, on_event=on_event).run(command)
+    return RunResult(outcome, tuple(arm.log), tuple(arm.sent), spec.dry_run)
