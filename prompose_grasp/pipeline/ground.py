@@ -3,6 +3,8 @@ box"), found in the image like the object and turned into a place target (`grasp
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from prompose_grasp.errors import AmbiguousObjectError, InvalidInputError, ObjectNotFoundError
@@ -13,6 +15,7 @@ from prompose_grasp.pipeline.describe import describe_contenders
 from prompose_grasp.pipeline.loop import Loop
 from prompose_grasp.pipeline.observe import Observation, to_base
 from prompose_grasp.pipeline.record import Abort, RunRecord
+from prompose_grasp.pipeline.seams import ObjectEstimate
 from prompose_grasp.robot.interfaces import RGBDFrame
 
 __all__ = ["ground_place_target"]
@@ -32,7 +35,7 @@ def ground_place_target(
             est = loop.estimator.estimate(frame, prompt)
         except AmbiguousObjectError as exc:
             T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
-            fit = exc.estimates
+            fit = cast("tuple[ObjectEstimate, ...]", exc.estimates)  # the estimator's own estimates
             text = describe_contenders(prompt, fit, T_base_cam) if fit else str(exc)
             raise Abort("ambiguous", f"place target: {text}", fit, T_base_cam) from None
         except ObjectNotFoundError as exc:

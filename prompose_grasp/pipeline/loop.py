@@ -1,10 +1,9 @@
 """What every stage of the loop works with (`Loop`): the cell's devices and models, the estimator, the
-settings, the command validator and the progress callback; and the estimator seam (`Estimator`)."""
+settings, the command validator and the progress callback."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator, Mapping
-from typing import Any, Protocol
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
@@ -13,23 +12,12 @@ from prompose_grasp.grasp.place import PlaceTarget
 from prompose_grasp.pipeline.cell import Cell
 from prompose_grasp.pipeline.config import PickConfig
 from prompose_grasp.pipeline.outcome import ProgressEvent
-from prompose_grasp.robot.interfaces import Arm, Gripper, RGBDCamera, RGBDFrame
+from prompose_grasp.pipeline.seams import Estimator
+from prompose_grasp.robot.interfaces import Arm, Gripper, RGBDCamera
 from prompose_grasp.robot.model import RobotModel
 from prompose_grasp.robot.validator import CommandValidator
 
-__all__ = ["Estimator", "Loop"]
-
-
-class Estimator(Protocol):
-    """The estimator seam (`ProMPose` is one): the best match of a prompt in a frame, and estimates frame
-    after frame over a sequence. One with `estimate_all(frame, prompt, max_objects=, min_score_ratio=)` also
-    gives the alternative candidates (`PickConfig.candidates`). Each estimate has `pose` (`Pose9D`, camera
-    frame), `prior` (`name`, `symmetry`), `support_plane`, and may have `score`, `probability`,
-    `contenders`, `mask`, `mesh_cam`, `surface_cam`, `attributes` (`perception.estimate.Estimate`)."""
-
-    def estimate(self, frame: RGBDFrame, prompt: str) -> Any: ...
-
-    def track(self, frames: Iterable[RGBDFrame], prompt: str) -> Iterator[Any]: ...
+__all__ = ["Loop"]
 
 
 class Loop:

@@ -23,6 +23,7 @@ from prompose_grasp.grasp.planner import robot_pixel_mask, robot_self_capsules
 from prompose_grasp.pipeline.describe import describe_contenders
 from prompose_grasp.pipeline.loop import Loop
 from prompose_grasp.pipeline.record import Abort, RunRecord
+from prompose_grasp.pipeline.seams import ObjectEstimate
 from prompose_grasp.robot.interfaces import RGBDCamera, RGBDFrame
 
 __all__ = ["FrameCheck", "Observation", "capture", "estimates", "estimates_once", "to_base"]
@@ -39,7 +40,7 @@ class Observation:
     plane, the observed points in `base` (N, 3) [m], and the joints (6,) [rad] at the capture."""
 
     frame: RGBDFrame
-    estimate: Any
+    estimate: ObjectEstimate
     target: ObjectModel
     support: Plane | None
     points_base: np.ndarray
@@ -112,7 +113,7 @@ def estimates(
     min_score_ratio: float | None = None,
     judge: bool = False,
     check: FrameCheck | None = None,
-) -> tuple[RGBDFrame, list[Any]]:
+) -> tuple[RGBDFrame, list[ObjectEstimate]]:
     """Capture `observe_frames` frames of the fixed camera and estimate the prompt: the candidates, best first
     (one with a tracker over several frames or an estimator without `estimate_all`). Nothing found is retried
     on fresh frames `camera_retries` times (a transient depth hole or occlusion) before "not_found"; an
@@ -137,7 +138,7 @@ def estimates_once(
     judge: bool = False,
     check: FrameCheck | None = None,
     camera: RGBDCamera | None = None,
-) -> tuple[RGBDFrame, list[Any]]:
+) -> tuple[RGBDFrame, list[ObjectEstimate]]:
     """Capture (`camera`, the fixed one when None) and estimate; the candidates' estimates, best first (those
     scoring under `min_score_ratio` of the best are not fitted; `candidate_ratio` when None).
 
@@ -183,12 +184,12 @@ def estimates_once(
     return frame, ests
 
 
-def to_base(est: Any, T_base_cam: np.ndarray, name: str) -> tuple[ObjectModel, Plane | None]:
+def to_base(est: ObjectEstimate, T_base_cam: np.ndarray, name: str) -> tuple[ObjectModel, Plane | None]:
     """An estimate (camera frame) as an `ObjectModel` in base, with its support plane in base (or None)."""
     pose_base = est.pose.transformed(T_base_cam)
-    mesh = None
-    if getattr(est, "mesh_cam", None) is not None:
-        mesh = est.mesh_cam.copy()
+    mesh = getattr(est, "mesh_cam", None)
+    if mesh is not None:
+        mesh = mesh.copy()
         mesh.apply_transform(T_base_cam)
     surface = getattr(est, "surface_cam", None)
     if surface is not None:

@@ -86,11 +86,12 @@ from prompose_grasp.pipeline.config import PickConfig
 from prompose_grasp.pipeline.faults import DEVICE_FAULTS, fault_reason, stop_after_fault
 from prompose_grasp.pipeline.ground import ground_place_target
 from prompose_grasp.pipeline.hand import go_home
-from prompose_grasp.pipeline.loop import Estimator, Loop
+from prompose_grasp.pipeline.loop import Loop
 from prompose_grasp.pipeline.observe import Observation
 from prompose_grasp.pipeline.outcome import PickOutcome, ProgressEvent, Reason
 from prompose_grasp.pipeline.plan import choose_and_plan, plan
 from prompose_grasp.pipeline.record import Abort, RunRecord
+from prompose_grasp.pipeline.seams import Estimator
 from prompose_grasp.pipeline.wrist_look import wrist_look
 from prompose_grasp.robot.interfaces import Arm, Gripper, RGBDCamera
 from prompose_grasp.robot.model import RobotModel

@@ -10,13 +10,13 @@ import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
 from prompose_grasp.grasp.place import PlacePose
 from prompose_grasp.grasp.types import Grasp, ObjectModel
 from prompose_grasp.pipeline.outcome import AttemptRecord, Reason
+from prompose_grasp.pipeline.seams import ObjectEstimate
 from prompose_grasp.robot.interfaces import RGBDFrame
 
 __all__ = ["STAGE_KEYS", "Abort", "Grip", "RunRecord"]
@@ -37,7 +37,7 @@ class Abort(Exception):
         self,
         reason: Reason,
         message: str,
-        estimates: Sequence[Any] = (),
+        estimates: Sequence[ObjectEstimate] = (),
         T_base_cam: np.ndarray | None = None,
         held_at: np.ndarray | None = None,
         retry_at: np.ndarray | None = None,
@@ -82,7 +82,7 @@ class RunRecord:
 
     t_start: float = field(default_factory=time.perf_counter)
     timings_s: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGE_KEYS, 0.0))
-    estimates: list[Any] = field(default_factory=list)
+    estimates: list[ObjectEstimate] = field(default_factory=list)
     T_base_cams: list[np.ndarray] = field(default_factory=list)
     attempts: list[AttemptRecord] = field(default_factory=list)
     grasp: Grasp | None = None
@@ -102,7 +102,7 @@ class RunRecord:
         finally:
             self.timings_s[stage] += time.perf_counter() - t0
 
-    def acted_on(self, estimate: Any, T_base_cam: np.ndarray | None) -> None:
+    def acted_on(self, estimate: ObjectEstimate, T_base_cam: np.ndarray | None) -> None:
         """Note an estimate the run acts on (it goes into the outcome's `estimates`)."""
         self.estimates.append(estimate)
         self.T_base_cams.append(np.asarray(T_base_cam, dtype=np.float64))

@@ -19,7 +19,6 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 
@@ -36,6 +35,7 @@ from prompose_grasp.pipeline.hand import open_jaws, release_and_back_off
 from prompose_grasp.pipeline.loop import Loop
 from prompose_grasp.pipeline.observe import Observation, estimates
 from prompose_grasp.pipeline.record import Abort, RunRecord
+from prompose_grasp.pipeline.seams import ObjectEstimate
 from prompose_grasp.pipeline.wrong_object import (
     HELD_XY_SLACK_M,
     STOOD_MARGIN_M,
@@ -166,7 +166,7 @@ def _resting_part(
     loop: Loop,
     obs: Observation,
     grasp: Grasp,
-    ests: Sequence[Any],
+    ests: Sequence[ObjectEstimate],
     heights: Sequence[np.ndarray | None],
     T_base_cam: np.ndarray,
 ) -> str | None:
@@ -227,7 +227,7 @@ def set_down(loop: Loop, run: RunRecord, grasp: Grasp, why: str) -> None:
     raise Abort("camera_failed", f"{why}; the object was set down where it was picked")
 
 
-def seen_heights(est: Any, frame: RGBDFrame, support: Plane | None) -> np.ndarray | None:
+def seen_heights(est: ObjectEstimate, frame: RGBDFrame, support: Plane | None) -> np.ndarray | None:
     """Heights above the support [m] of the depth points of `est`'s mask (in the frame's base frame); None
     without a mask, a support or 10 points. Something standing on the support shows points near it;
     something held in the air does not."""

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 
@@ -29,6 +28,7 @@ from prompose_grasp.pipeline.hand import release_and_back_off
 from prompose_grasp.pipeline.loop import Loop
 from prompose_grasp.pipeline.observe import Observation
 from prompose_grasp.pipeline.record import Abort, RunRecord
+from prompose_grasp.pipeline.seams import ObjectEstimate
 from prompose_grasp.robot.interfaces import RGBDFrame
 
 __all__ = ["HELD_XY_SLACK_M", "STOOD_MARGIN_M", "STOOD_MIN_POINTS", "across", "put_back", "wrong_object"]
@@ -60,13 +60,13 @@ def across(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm((np.asarray(a) - np.asarray(b))[:2]))
 
 
-def _total(est: Any) -> float:
+def _total(est: ObjectEstimate) -> float:
     """The grounder's score total of an estimate (`grounding.score.total_of_score`; -inf without a score)."""
     s = float(getattr(est, "score", float("nan")))
     return -math.inf if math.isnan(s) else float(total_of_score(min(max(s, 0.0), 1.0)))
 
 
-def _probability(est: Any) -> float:
+def _probability(est: ObjectEstimate) -> float:
     """The estimate's calibrated probability of being the object named (NaN when not computed)."""
     return float(getattr(est, "probability", math.nan))
 
@@ -88,9 +88,9 @@ def wrong_object(
     cmd: Command,
     obs: Observation,
     frame: RGBDFrame,
-    ests: Sequence[Any],
+    ests: Sequence[ObjectEstimate],
     lowest_seen: Sequence[float],
-) -> tuple[Any, Any, str] | None:
+) -> tuple[ObjectEstimate, ObjectEstimate, str] | None:
     """(held, the candidate that should have been picked, why) when the re-observation after the lift
     says the held object is not the one named; None when it is, or when it cannot tell (fails closed).
 
@@ -147,7 +147,7 @@ def wrong_object(
     if colour is None:
         return None
 
-    def share(e: Any) -> float:
+    def share(e: ObjectEstimate) -> float:
         return colour_share(frame.rgb, getattr(e, "mask", None), colour, frame.depth_m)
 
     s_held = share(held)
@@ -168,8 +168,8 @@ def put_back(
     obs: Observation,
     grasp: Grasp,
     frame: RGBDFrame,
-    held: Any,
-    other: Any,
+    held: ObjectEstimate,
+    other: ObjectEstimate,
     why: str,
 ) -> None:
     """Put the wrong object back where it stood (the lift line back down to the grasp pose, validated
