@@ -24,6 +24,9 @@ Each stage is a module of this package, working on the `Loop` (the cell, estimat
 | verify | `verify`, `wrong_object` | held? lifted? the object named? (fails closed) |
 | stop | `faults` | the stop path after a device fault |
 
+Around them: `cell` (the devices, `make_cell`), `seams` (the estimator protocols), `loop` (what every stage
+works with), `record` (the run's record, `Abort`, stage timing), `config` (`PickConfig`).
+
 Every expected failure ends the run with a typed reason (`PickOutcome.reason`) instead of an exception:
 
 | reason | when |
