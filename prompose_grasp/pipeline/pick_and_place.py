@@ -81,6 +81,7 @@ import numpy as np
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.grasp import PlaceTarget, get_gripper
+from prompose_grasp.grasp.grippers import GripperGeometry
 from prompose_grasp.pipeline.attempt import try_grasps
 from prompose_grasp.pipeline.candidates import observe_candidates
 from prompose_grasp.pipeline.cell import Cell
@@ -200,6 +201,34 @@ class PickAndPlace:
     @property
     def gripper_kind(self) -> str:
         return self.loop.gripper_geometry.kind
+
+    @property
+    def arm(self) -> Arm:
+        return self.loop.arm
+
+    @property
+    def gripper(self) -> Gripper:
+        return self.loop.gripper
+
+    @property
+    def camera(self) -> RGBDCamera:
+        return self.loop.camera
+
+    @property
+    def wrist_camera(self) -> RGBDCamera | None:
+        return self.loop.wrist_camera
+
+    @property
+    def robot(self) -> RobotModel:
+        return self.loop.robot
+
+    @property
+    def gripper_geometry(self) -> GripperGeometry:
+        return self.loop.gripper_geometry
+
+    @property
+    def place_targets(self) -> Mapping[str, PlaceTarget]:
+        return self.loop.place_targets
 
     # ------------------------------------------------------------------------------------------------ run
     def run(self, command: str | Command) -> PickOutcome:
