@@ -4,7 +4,8 @@
 pnp = PickAndPlace(arm, gripper, camera, ProMPose.default(), robot, "parallel_jaw",
                    place_targets={"bin": PlaceTarget("bin", T_base_bin, [0.13, 0.10], 0.10)})
 outcome = pnp.run("put the red mug in the bin")      # PickOutcome; outcome.reason, outcome.timings_s
-pnp = PickAndPlace.for_cell(make_cell(config), ProMPose.default())   # the same, from a cell factory
+with make_cell(config) as cell:                       # the same on a cell from the factory (`cell`)
+    outcome = PickAndPlace.for_cell(cell, ProMPose.default()).run("put the red mug in the bin")
 ```
 
 Nothing here reads ground truth: the target is whatever the estimator grounds from the camera frames, the
