@@ -1,18 +1,23 @@
-"""The 9-DoF fit alone on the real household meshes: `python -m sim.bench_fit_meshes --seeds 0-49 [--json R]`.
+"""First-frame perception on the `bench-pick` scenes: `python -m sim.bench_perception --scenario real_meshes|
+lookalikes|tabletop_household [--prompts name|colour+name] [--oracle-mask] --seeds 0-49 [--json R]`.
 
-Each seed builds the `real_meshes` tabletop of `sim.bench_pick` (five of the ../shared meshes, placed and
-settled by the physics, random colours), renders the front camera's first frame with its noise model and
-fits the named object on the simulator's own mask of it (the ORACLE mask, named so: it isolates the fit from
-grounding) with the library's default estimator and the bare name as the prompt. Scored against the mesh's
-ground-truth box (its axis-aligned box in the file's frame, turned by the settled pose):
+Each seed builds the scene `sim.bench_pick` builds for its episode (the same objects, placements, colours and
+command), renders the front camera's first frame with its noise model, and asks the library's default
+estimator for the command's object: grounded from the words (`ProMPose.estimate`: one object, "ambiguous" or
+"not found"), or fitted on the simulator's own mask of the named object (`--oracle-mask`, ORACLE, named so:
+the fit alone). No arm moves; a seed costs a scene build and one estimate, so grounding and fit changes are
+measured on many scenes in minutes. Judged against the scene's ground truth:
 
-- exact oriented-box IoU (`eval.nocs_box_iou`); a mesh that is the same after any turn about its up axis (a
-  cup, a bottle, a wine glass: `rotationally_symmetric`, read off the mesh itself) and stands on it is scored
-  NOCS-style, the best IoU over turns of the estimate about its y axis;
-- the centre error, and the estimated extents against the true ones (both sorted, so a box whose axes are
-  named differently is compared extent by extent).
+- the outcome: `right` (the estimate's mask lies on an object the words fit, `sim.bench_accounting.
+  fitting_objects`), `wrong` (on another object, or on none), `ambiguous` (correct when two or more objects
+  fit the words), `not_found`; look-alike scenes also by kind (`implied` top-1, `not_implied` asked);
+- for a right pick, the exact oriented-box IoU against the object's box (`eval.nocs_box_iou`) and the centre
+  error; an object round about its up axis and standing on it (a family with `y_continuous` symmetry, or a
+  mesh that is the same after any turn about its up axis: a cup, a bottle, a wine glass,
+  `rotationally_symmetric`, read off the mesh itself) is scored NOCS-style, the best IoU over turns of the
+  estimate about its y axis. A seed that is not a right pick counts as IoU 0 in 3D50 / 3D75.
 
-The meshes never ship with the project (licences): without ../shared/data/objects the command says so.
+The real meshes never ship with the project (licences): without ../shared/data/objects the command says so.
 """
 
 from __future__ import annotations
@@ -80,38 +85,86 @@ def _sRT(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return T
 
 
-def fit_one(seed: int, estimator: Any) -> dict[str, Any]:
-    """Build seed `seed`'s real-mesh scene, fit its named object on the oracle mask, score it."""
+def _which_object(mask: np.ndarray, instances: np.ndarray, names: dict[int, str]) -> str | None:
+    """The scene object most of an estimate's mask lies on, or None when no object holds half of it."""
+    ids, counts = np.unique(instances[mask], return_counts=True)
+    if not len(ids):
+        return None
+    k = int(np.argmax(counts))
+    if ids[k] == 0 or counts[k] < 0.5 * np.count_nonzero(mask):
+        return None
+    return names.get(int(ids[k]))
+
+
+def perceive_one(
+    scenario: str,
+    seed: int,
+    estimator: Any,
+    prompts: str = "name",
+    oracle_mask: bool = False,
+    parser: Any = None,
+) -> dict[str, Any]:
+    """Seed `seed`'s first frame of a `bench-pick` scenario, the command's object estimated (grounded, or on
+    the named object's ORACLE mask), judged against the scene's ground truth. `parser`: the loop's command
+    parser (default: a new `CommandParser()`)."""
     from prompose_grasp.errors import AmbiguousObjectError, ObjectNotFoundError
-    from sim.bench_pick import _temp_scene, real_mesh_plan
+    from prompose_grasp.pipeline.command import CommandParser
+    from sim.bench_pick import _episode_plan
     from sim.scene_file import build_scene, load_scene
 
-    doc, plan = real_mesh_plan(seed, prompts="name")
-    spec = load_scene(_temp_scene(doc, f"fit_{seed}"))
-    name = plan["target_object"]
-    mesh_path = next(o["mesh"]["path"] for o in doc["objects"] if o["name"] == name)
-    row: dict[str, Any] = {"seed": seed, "object": name, "prompt": f"the {plan['said']}"}
+    plan = _episode_plan(scenario, seed, place=False, real_meshes=False, prompts=prompts)
+    spec = load_scene(plan.scene)
+    prompt = (parser or CommandParser()).parse(plan.command).object_prompt
+    fitting = list(plan.fitting_objects or [])
+    row: dict[str, Any] = {
+        "seed": seed,
+        "object": plan.target_object,
+        "prompt": prompt,
+        "fitting": fitting,
+        "lookalike_kind": plan.lookalike_kind,
+    }
     with build_scene(spec, seed=seed) as world:
         camera = next(c["name"] for c in spec.cameras if "pose" in c)
         frame = world.render(camera, rng=np.random.default_rng(seed))
-        obj = next(o for o in world.objects if o.name == name)
-        mask = world.ground_truth_mask(camera) == obj.instance_id
-        gt = next(g for g in world.ground_truth(camera) if g.name == name)
-    row["mask_pixels"] = int(np.count_nonzero(mask))
+        instances = world.ground_truth_mask(camera)
+        names = {o.instance_id: o.name for o in world.objects}
+        gts = {g.name: g for g in world.ground_truth(camera)}
+        meshes = {o.name: o.source for o in world.objects}
+    # the object the command names; where the words fit several (two look-alikes), the first of them
+    named = plan.target_object or fitting[0]
+    row["object"] = named
+    target_mask = instances == next(i for i, n in names.items() if n == named)
+    row["mask_pixels"] = int(np.count_nonzero(target_mask))
     if row["mask_pixels"] < 64:  # the standard protocol's floor: too few depth pixels to evaluate
         row["status"] = "hidden"
         return row
     t0 = time.perf_counter()
     try:
-        est = estimator.estimate(frame, row["prompt"], mask=mask)
-    except (ObjectNotFoundError, AmbiguousObjectError) as exc:
-        row["status"] = type(exc).__name__
+        est = estimator.estimate(frame, prompt, mask=target_mask if oracle_mask else None)
+    except AmbiguousObjectError as exc:
+        row["status"] = "ambiguous"
+        row["ambiguous"] = "correct" if len(fitting) >= 2 else "wrong"
+        row["contenders"] = [_which_object(e.mask, instances, names) for e in exc.estimates]
         return row
-    row["fit_s"] = time.perf_counter() - t0
-    # round about its up axis and still standing on it (a bottle that fell over is round about a level axis)
+    except ObjectNotFoundError:
+        row["status"] = "not_found"
+        return row
+    row["time_s"] = time.perf_counter() - t0
+    chosen = _which_object(est.mask, instances, names)
+    row["chosen"] = chosen
+    row["probability"] = float(est.probability)
+    if chosen is None or chosen not in fitting:
+        row["status"] = "wrong"
+        return row
+    gt = gts[chosen]
     plane = est.support_plane
+    # round about its up axis and still standing on it (a bottle that fell over is round about a level axis)
     standing = plane is not None and abs(float(gt.R_cam_obj[:, 1] @ plane.normal_cam)) > _STANDING_COS
-    symmetric = standing and _symmetric(mesh_path)
+    if gt.symmetry != "none":
+        round_about_y = gt.symmetry in ("y_continuous", "spherical")
+    else:
+        round_about_y = Path(meshes[chosen]).is_file() and _symmetric(meshes[chosen])
+    symmetric = standing and round_about_y
     iou = nocs_box_iou(
         _sRT(est.pose.R, est.pose.t),
         np.asarray(est.pose.size),
@@ -121,7 +174,7 @@ def fit_one(seed: int, estimator: Any) -> dict[str, Any]:
         y_symmetric=symmetric,
     )
     row.update(
-        status="ok",
+        status="right",
         symmetric=symmetric,
         iou=float(iou),
         centre_error_m=float(np.linalg.norm(np.asarray(est.pose.t) - gt.t_cam_obj_m)),
@@ -129,8 +182,8 @@ def fit_one(seed: int, estimator: Any) -> dict[str, Any]:
         size_gt_m=sorted((float(v) for v in gt.size_m), reverse=True),
         prior=est.prior.name,
     )
-    if est.support_plane is not None:
-        up = np.asarray(est.support_plane.normal_cam, dtype=float)
+    if plane is not None:
+        up = np.asarray(plane.normal_cam, dtype=float)
         row["height_est_m"] = _extent_along(est.pose.R, est.pose.size, up)
         row["height_gt_m"] = _extent_along(gt.R_cam_obj, gt.size_m, up)
     return row
@@ -144,8 +197,12 @@ def _extent_along(R: np.ndarray, size: np.ndarray, direction: np.ndarray) -> flo
 
 def row_line(row: dict[str, Any]) -> str:
     """One seed's result on one line."""
-    head = f"seed {row['seed']:4d} {row['object']:16s} {row['status']:8s}"
-    if row["status"] != "ok":
+    head = f"seed {row['seed']:4d} {row['object']:18s} {row['status']:9s}"
+    if row["status"] == "ambiguous":
+        return f"{head} ({row['ambiguous']}: {', '.join(str(c) for c in row['contenders'])})"
+    if row["status"] == "wrong":
+        return f"{head} took {row['chosen']} (p {row['probability']:.2f})"
+    if row["status"] != "right":
         return head
     est, true = np.round(row["size_est_m"], 3).tolist(), np.round(row["size_gt_m"], 3).tolist()
     height = f"{row.get('height_est_m', np.nan):.3f}/{row.get('height_gt_m', np.nan):.3f}"
@@ -156,20 +213,52 @@ def row_line(row: dict[str, Any]) -> str:
 
 
 def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """3D50 / 3D75 [%] over the seeds (a failed fit counts as IoU 0), mean and median IoU, centre error."""
+    """Counts of each outcome, and 3D50 / 3D75 [%] over the seeds (anything but a right pick counts as IoU
+    0), mean and median IoU, the median centre error of the right picks; per `lookalike_kind` where the
+    scenario has them: `implied` top-1 (right picks), `not_implied` asked (ambiguous, correct)."""
     scored = [r for r in rows if r["status"] != "hidden"]
     ious = np.array([r.get("iou", 0.0) for r in scored])
     centre = np.array([r["centre_error_m"] for r in scored if "centre_error_m" in r])
     n = len(scored)
-    return {
+    out: dict[str, Any] = {
         "n": n,
+        "hidden": len(rows) - n,
+        "right": sum(r["status"] == "right" for r in scored),
+        "wrong": sum(r["status"] == "wrong" for r in scored),
+        "ambiguous_correct": sum(r.get("ambiguous") == "correct" for r in scored),
+        "ambiguous_wrong": sum(r.get("ambiguous") == "wrong" for r in scored),
+        "not_found": sum(r["status"] == "not_found" for r in scored),
         "3d50": float(100.0 * np.mean(ious >= 0.5)) if n else float("nan"),
         "3d75": float(100.0 * np.mean(ious >= 0.75)) if n else float("nan"),
         "mean_iou": float(np.mean(ious)) if n else float("nan"),
         "median_iou": float(np.median(ious)) if n else float("nan"),
         "median_centre_error_cm": float(100.0 * np.median(centre)) if len(centre) else float("nan"),
-        "hidden": len(rows) - n,
     }
+    for kind, good in (("implied", "right"), ("not_implied", "ambiguous_correct")):
+        sub = [r for r in scored if r.get("lookalike_kind") == kind]
+        if sub:
+            ok = sum(
+                (r["status"] == "right") if good == "right" else (r.get("ambiguous") == "correct")
+                for r in sub
+            )
+            out[kind] = {"n": len(sub), good: ok, "wrong": sum(r["status"] == "wrong" for r in sub)}
+    return out
+
+
+def summary_line(s: dict[str, Any]) -> str:
+    """The summary on two lines."""
+    lines = [
+        f"n {s['n']}: right {s['right']}, wrong {s['wrong']}, ambiguous {s['ambiguous_correct']} correct / "
+        f"{s['ambiguous_wrong']} wrong, not found {s['not_found']}, hidden {s['hidden']}",
+        f"3D50 {s['3d50']:.0f} %  3D75 {s['3d75']:.0f} %  mean IoU {s['mean_iou']:.3f}  median IoU "
+        f"{s['median_iou']:.3f}  median centre error {s['median_centre_error_cm']:.2f} cm (right picks)",
+    ]
+    if "implied" in s:
+        lines.append(f"implied: top-1 {s['implied']['right']}/{s['implied']['n']}")
+    if "not_implied" in s:
+        ni = s["not_implied"]
+        lines.append(f"not implied: asked {ni['ambiguous_correct']}/{ni['n']}")
+    return "\n".join(lines)
 
 
 def _seeds(text: str) -> list[int]:
@@ -181,35 +270,43 @@ def _seeds(text: str) -> list[int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m sim.bench_fit_meshes", description=__doc__.split("\n")[0])
+    from sim.bench_pick import PROMPT_STYLES, SCENARIOS
+
+    p = argparse.ArgumentParser(prog="python -m sim.bench_perception", description=__doc__.split("\n")[0])
+    p.add_argument(
+        "--scenario", default="real_meshes", choices=[s for s in SCENARIOS if "logistics" not in s]
+    )
+    p.add_argument("--prompts", default=None, choices=PROMPT_STYLES, help="default: the scenario's")
+    p.add_argument("--oracle-mask", action="store_true", help="ORACLE: the named object's true mask")
     p.add_argument("--seeds", default="0-49", help="seeds, e.g. 0-49 or 100-149,200 (default 0-49)")
     p.add_argument("--json", type=Path, default=None, help="write every row and the summary here")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         from prompose_grasp.perception.estimator import ProMPose
-        from sim.bench_pick import _load_real_meshes
+        from sim.bench_pick import _load_real_meshes, resolve_prompts
 
-        _load_real_meshes()  # says where the meshes should be when they are not there
-        estimator = ProMPose.default()
+        prompts = resolve_prompts(args.scenario, args.prompts)
+        if args.scenario == "real_meshes":
+            _load_real_meshes()  # says where the meshes should be when they are not there
+        from prompose_grasp.pipeline.command import CommandParser
+
+        estimator, parser = ProMPose.default(), CommandParser()
         rows = []
         seeds = _seeds(args.seeds)
         for k, seed in enumerate(seeds):
-            row = fit_one(seed, estimator)
+            row = perceive_one(args.scenario, seed, estimator, prompts, args.oracle_mask, parser)
             rows.append(row)
             print(f"[{k + 1}/{len(seeds)}] " + row_line(row), flush=True)
     except PromposeError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     summary = summarise(rows)
-    print(
-        f"\nseeds {args.seeds}: n {summary['n']}  3D50 {summary['3d50']:.0f} %  "
-        f"3D75 {summary['3d75']:.0f} %  mean IoU {summary['mean_iou']:.3f}  "
-        f"median IoU {summary['median_iou']:.3f}  "
-        f"median centre error {summary['median_centre_error_cm']:.2f} cm  (hidden {summary['hidden']})"
-    )
+    mode = "oracle mask" if args.oracle_mask else "grounded"
+    print(f"\n{args.scenario}, {prompts} prompts, {mode}, seeds {args.seeds}\n" + summary_line(summary))
     if args.json is not None:
-        args.json.write_text(json.dumps({"summary": summary, "rows": rows}, indent=1))
+        report = {"scenario": args.scenario, "prompts": prompts, "oracle_mask": args.oracle_mask}
+        args.json.write_text(json.dumps({**report, "summary": summary, "rows": rows}, indent=1))
     return 0
 
 
