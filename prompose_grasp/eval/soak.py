@@ -150,8 +150,23 @@ def time_verdict(windows: list[dict[str, Any]], warmup: int, max_slowdown: float
     }
 
 
+#: What the traced memory leaves out: tracemalloc's own allocations, the import system's, and those made on
+#: the lines of the soak scripts themselves (`*/soak.py`: the samples and step facts they keep; the steps'
+#: own work runs in other files and is traced).
+_NOT_TRACED = (
+    tracemalloc.Filter(False, tracemalloc.__file__),
+    tracemalloc.Filter(False, "<frozen importlib*"),
+    tracemalloc.Filter(False, "*/soak.py"),
+)
+
+
+def _traced_bytes() -> float:
+    """Live traced memory now [bytes], less `_NOT_TRACED`."""
+    return float(sum(t.size for t in tracemalloc.take_snapshot().filter_traces(_NOT_TRACED).traces))
+
+
 def _top_growth(before: tracemalloc.Snapshot, after: tracemalloc.Snapshot, n: int = 12) -> list[dict]:
-    keep = [tracemalloc.Filter(False, tracemalloc.__file__), tracemalloc.Filter(False, "<frozen importlib*")]
+    keep = list(_NOT_TRACED)
     diff = after.filter_traces(keep).compare_to(before.filter_traces(keep), "lineno")
     return [
         {
@@ -192,13 +207,11 @@ def run_soak(
             f"soak needs n >= 1, sample_every >= 1, window >= 1, 0 <= warmup < n; got n={n}, "
             f"sample_every={sample_every}, window={window}, warmup={warmup}"
         )
-    started_tracing = trace and not tracemalloc.is_tracing()
-    if started_tracing:
-        tracemalloc.start()
     samples: list[dict[str, Any]] = []
     steps: list[dict[str, Any]] = []
-    wall_s: list[float] = []
-    cpu_s: list[float] = []
+    # per-step times [s], allocated before tracing starts (a growing list would be a traced growth)
+    wall_s, cpu_s = np.full(n, np.nan), np.full(n, np.nan)
+    done = 0
     snap_warm = None
     top: list[dict] = []
     t_start = time.perf_counter()
@@ -206,7 +219,7 @@ def run_soak(
 
     def sample(i: int) -> None:
         gc.collect()
-        traced = tracemalloc.get_traced_memory()[0] / MIB if trace else math.nan
+        traced = _traced_bytes() / MIB if trace else math.nan
         samples.append(
             {
                 "step": i,
@@ -216,6 +229,27 @@ def run_soak(
             }
         )
 
+    def report() -> dict[str, Any]:
+        return _report(
+            samples,
+            steps,
+            wall_s[:done],
+            cpu_s[:done],
+            n,
+            unit,
+            per,
+            warmup,
+            window,
+            tolerance_mib,
+            trace,
+            top,
+            stopped,
+            meta,
+        )
+
+    started_tracing = trace and not tracemalloc.is_tracing()
+    if started_tracing:
+        tracemalloc.start()
     try:
         sample(0)
         for i in range(n):
@@ -229,8 +263,9 @@ def run_soak(
                 stopped = f"{type(exc).__name__}: {exc}"
                 log.exception("soak stopped at %s %d", unit, i)
                 break
-            wall_s.append(time.perf_counter() - t0)
-            cpu_s.append(time.process_time() - c0)
+            wall_s[i] = time.perf_counter() - t0
+            cpu_s[i] = time.process_time() - c0
+            done = i + 1
             if facts:
                 steps.append({"step": i, **facts})
             if (i + 1) % sample_every == 0 or i + 1 == n:
@@ -240,36 +275,18 @@ def run_soak(
                     progress(
                         f"[{i + 1}/{n} {unit}s] RSS {s['rss_mib']:.1f} MiB, "
                         f"traced {s['traced_mib']:.1f} MiB, "
-                        f"last {unit} {1e3 * wall_s[-1]:.0f} ms wall, {s['wall_s']:.0f} s so far"
+                        f"last {unit} {1e3 * wall_s[i]:.0f} ms wall, {s['wall_s']:.0f} s so far"
+                        + (f" ({facts['reason']})" if facts and "reason" in facts else "")
                     )
                 if on_sample is not None:
-                    on_sample(
-                        _report(
-                            samples,
-                            steps,
-                            wall_s,
-                            cpu_s,
-                            n,
-                            unit,
-                            per,
-                            warmup,
-                            window,
-                            tolerance_mib,
-                            trace,
-                            top,
-                            stopped,
-                            meta,
-                        )
-                    )
-        if trace and snap_warm is not None and len(wall_s) > warmup:
+                    on_sample(report())
+        if trace and snap_warm is not None and done > warmup:
             gc.collect()
             top = _top_growth(snap_warm, tracemalloc.take_snapshot())
     finally:
         if started_tracing:
             tracemalloc.stop()
-    return _report(
-        samples, steps, wall_s, cpu_s, n, unit, per, warmup, window, tolerance_mib, trace, top, stopped, meta
-    )
+    return report()
 
 
 def _report(
