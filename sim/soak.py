@@ -76,6 +76,7 @@ def soak_episodes(
     window: int = 20,
     tolerance_mib: float = 5.0,
     trace: bool = True,
+    trace_frames: int = 1,
     progress: Any = None,
     on_sample: Any = None,
 ) -> dict[str, Any]:
@@ -115,6 +116,7 @@ def soak_episodes(
         window=window,
         tolerance_mib=tolerance_mib,
         trace=trace,
+        trace_frames=trace_frames,
         progress=progress,
         on_sample=on_sample,
         meta={"scenario": scenario, "seed0": seed0},
@@ -146,6 +148,9 @@ def add_episode_arguments(p: argparse.ArgumentParser) -> None:
 
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-tracemalloc", action="store_true", help="RSS only (tracemalloc slows Python code)")
+    p.add_argument(
+        "--trace-frames", type=int, default=1, help="frames per traced allocation (1; more: a leak hunt)"
+    )
     p.add_argument("--json", dest="json_out", default=None, help="write the report here")
 
 
@@ -171,6 +176,7 @@ def run_from_args(args: argparse.Namespace) -> int:
             sample_every=args.sample_every,
             window=args.window,
             trace=not args.no_tracemalloc,
+            trace_frames=args.trace_frames,
             progress=show,
             on_sample=on_sample,
             meta={
@@ -188,6 +194,7 @@ def run_from_args(args: argparse.Namespace) -> int:
             warmup=args.warmup,
             window=args.window,
             trace=not args.no_tracemalloc,
+            trace_frames=args.trace_frames,
             progress=show,
             on_sample=on_sample,
         )

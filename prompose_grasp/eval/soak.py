@@ -165,18 +165,37 @@ def _traced_bytes() -> float:
     return float(sum(t.size for t in tracemalloc.take_snapshot().filter_traces(_NOT_TRACED).traces))
 
 
+def _own_frame(tb: tracemalloc.Traceback) -> tracemalloc.Frame:
+    """The innermost frame of a traceback outside installed packages and the standard library (the code
+    that asked numpy for the array), else the innermost frame."""
+    frames = list(tb)  # oldest first
+    for f in reversed(frames):
+        if "site-packages" not in f.filename and not f.filename.startswith(
+            ("<", sys.prefix, sys.base_prefix)
+        ):
+            return f
+    return frames[-1]
+
+
 def _top_growth(before: tracemalloc.Snapshot, after: tracemalloc.Snapshot, n: int = 12) -> list[dict]:
+    """The allocation sites whose live traced memory changed most (by size) between the two snapshots:
+    `site` the innermost frame, `caller` the innermost frame of this project's code (with `trace_frames`
+    > 1; numpy's own lines say little)."""
     keep = list(_NOT_TRACED)
-    diff = after.filter_traces(keep).compare_to(before.filter_traces(keep), "lineno")
-    return [
-        {
-            "site": f"{s.traceback[0].filename}:{s.traceback[0].lineno}",
-            "size_diff_kib": s.size_diff / 1024.0,
-            "count_diff": s.count_diff,
-            "size_kib": s.size / 1024.0,
-        }
-        for s in diff[:n]
-    ]
+    diff = after.filter_traces(keep).compare_to(before.filter_traces(keep), "traceback")
+    out = []
+    for s in diff[:n]:
+        site, caller = list(s.traceback)[-1], _own_frame(s.traceback)
+        out.append(
+            {
+                "site": f"{site.filename}:{site.lineno}",
+                "caller": f"{caller.filename}:{caller.lineno}",
+                "size_diff_kib": s.size_diff / 1024.0,
+                "count_diff": s.count_diff,
+                "size_kib": s.size / 1024.0,
+            }
+        )
+    return out
 
 
 def run_soak(
@@ -190,6 +209,7 @@ def run_soak(
     window: int,
     tolerance_mib: float,
     trace: bool = True,
+    trace_frames: int = 1,
     progress: Callable[[str], None] | None = None,
     on_sample: Callable[[dict[str, Any]], None] | None = None,
     meta: dict[str, Any] | None = None,
@@ -198,7 +218,10 @@ def run_soak(
 
     `step` returns a dict of facts about that step (kept in `steps`, e.g. an episode's outcome) or None.
     `unit`: "frame" | "episode"; `per`: the slopes' unit of steps (1000 frames, 100 episodes). `warmup`:
-    steps left out of the slopes and of the time windows' comparison. `progress`: a line per sample.
+    steps left out of the slopes and of the time windows' comparison. `trace`: run `tracemalloc` (started
+    here when it is not running; what was allocated before is not traced); `trace_frames`: frames kept per
+    allocation (1 is cheapest; more name the caller of numpy in `top_growth`, for a leak hunt).
+    `progress`: a line per sample.
     `on_sample`: the report so far, after every sample (a long run writes it out and can be stopped).
     A step that raises stops the soak early; the report says so (`n_done`, `stopped`).
     """
@@ -247,9 +270,10 @@ def run_soak(
             meta,
         )
 
+    meta = {"trace_frames": trace_frames if trace else 0, **(meta or {})}
     started_tracing = trace and not tracemalloc.is_tracing()
     if started_tracing:
-        tracemalloc.start()
+        tracemalloc.start(trace_frames)
     try:
         sample(0)
         for i in range(n):
@@ -374,7 +398,8 @@ def format_soak(r: dict[str, Any], max_rows: int = 12) -> str:
             f"-> {'level' if t['level'] else 'SLOWER'} (limit x{t['max_slowdown']:.2f})"
         )
     for g in r["top_growth"][:5]:
-        lines.append(f"  traced {g['size_diff_kib']:+.1f} KiB ({g['count_diff']:+d} blocks) at {g['site']}")
+        at = g["site"] if g["caller"] == g["site"] else f"{g['site']} (from {g['caller']})"
+        lines.append(f"  traced {g['size_diff_kib']:+.1f} KiB ({g['count_diff']:+d} blocks) at {at}")
     return "\n".join(lines)
 
 
@@ -404,6 +429,7 @@ def soak_track(
     window: int = 500,
     tolerance_mib: float = 1.0,
     trace: bool = True,
+    trace_frames: int = 1,
     fps: float = 30.0,
     progress: Callable[[str], None] | None = None,
     on_sample: Callable[[dict[str, Any]], None] | None = None,
@@ -450,6 +476,7 @@ def soak_track(
         window=window,
         tolerance_mib=tolerance_mib,
         trace=trace,
+        trace_frames=trace_frames,
         progress=progress,
         on_sample=on_sample,
         meta={"prompt": prompt, "sequence_frames": len(frames), **(meta or {})},
@@ -493,6 +520,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sample-every", type=int, default=100)
     p.add_argument("--window", type=int, default=500)
     p.add_argument("--no-tracemalloc", action="store_true", help="RSS only (tracemalloc slows Python code)")
+    p.add_argument(
+        "--trace-frames", type=int, default=1, help="frames per traced allocation (1; more: leak hunt)"
+    )
     p.add_argument("--json", dest="json_out", default=None)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
@@ -514,6 +544,7 @@ def main(argv: list[str] | None = None) -> int:
             sample_every=args.sample_every,
             window=args.window,
             trace=not args.no_tracemalloc,
+            trace_frames=args.trace_frames,
             progress=lambda line: sys.stderr.write(line + "\n"),
             on_sample=(lambda r: write_json(r, args.json_out)) if args.json_out else None,
             meta={"frames_dir": str(args.frames)},
