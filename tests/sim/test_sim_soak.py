@@ -31,6 +31,7 @@ def test_render_sweep_moves_the_camera_along_an_arc(sweep):
     assert all(f.depth_m.shape == (480, 640) and np.count_nonzero(f.depth_m) > 1e5 for f in sweep)
 
 
+@pytest.mark.slow
 def test_soak_track_runs_the_tracker_on_every_frame(tmp_path, sweep):
     from prompose_grasp.eval.soak import soak_track
     from prompose_grasp.perception.estimator import ProMPose
@@ -60,6 +61,7 @@ def test_soak_track_runs_the_tracker_on_every_frame(tmp_path, sweep):
     assert 0.03 < max(r["steps"][0]["size_m"]) < 0.2
 
 
+@pytest.mark.slow
 def test_library_soak_cli_plays_a_recorded_folder(tmp_path, sweep, capsys):
     folder = tmp_path / "seq"
     folder.mkdir()
