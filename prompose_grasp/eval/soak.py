@@ -132,15 +132,20 @@ def memory_verdict(fit: SlopeFit, tolerance_mib: float) -> dict[str, Any]:
     }
 
 
-def time_verdict(windows: list[dict[str, Any]], warmup: int, max_slowdown: float = 1.10) -> dict[str, Any]:
-    """The last window's median step time over the first window's after the warm-up (CPU and wall)."""
+def time_verdict(
+    windows: list[dict[str, Any]], warmup: int, max_slowdown: float = 1.10, per: float = 1.0
+) -> dict[str, Any]:
+    """The last window's median step time over the first window's after the warm-up (CPU and wall); with
+    three windows or more after the warm-up also `cpu_slope_ms`: a line through the windows' median CPU
+    times [ms per step] against their middle step, its slope per `per` steps with the 95 % interval
+    ([slope, lo, hi]; every window after the warm-up, not only the first and last)."""
     after = [w for w in windows if w["start"] >= warmup]
     if len(after) < 2:
         return {"cpu_ratio": math.nan, "wall_ratio": math.nan, "max_slowdown": max_slowdown, "level": None}
     first, last = after[0], after[-1]
     cpu = last["median_cpu_ms"] / first["median_cpu_ms"]
     wall = last["median_wall_ms"] / first["median_wall_ms"]
-    return {
+    out = {
         "first_window": [first["start"], first["end"]],
         "last_window": [last["start"], last["end"]],
         "cpu_ratio": cpu,
@@ -148,6 +153,12 @@ def time_verdict(windows: list[dict[str, Any]], warmup: int, max_slowdown: float
         "max_slowdown": max_slowdown,
         "level": bool(cpu <= max_slowdown),
     }
+    if len(after) >= 3:
+        fit = fit_slope(
+            [(w["start"] + w["end"]) / 2 for w in after], [w["median_cpu_ms"] for w in after], per
+        )
+        out["cpu_slope_ms"] = [fit.slope, fit.lo, fit.hi]
+    return out
 
 
 #: What the traced memory leaves out: tracemalloc's own allocations, the import system's, and those made on
@@ -341,6 +352,7 @@ def _report(
             memory[key.removesuffix("_mib")] = memory_verdict(fit, tolerance_mib)
     return {
         "unit": unit,
+        "per": per,
         "n_planned": n,
         "n_done": done,
         "stopped": stopped,
@@ -349,7 +361,7 @@ def _report(
         "samples": samples,
         "windows": windows,
         "memory": memory,
-        "time": time_verdict(windows, warmup),
+        "time": time_verdict(windows, warmup, per=per),
         "top_growth": top,
         "steps": steps,
         "machine": {
@@ -396,6 +408,12 @@ def format_soak(r: dict[str, Any], max_rows: int = 12) -> str:
             f"time: last window / first after warm-up: CPU x{t['cpu_ratio']:.2f}, "
             f"wall x{t['wall_ratio']:.2f} "
             f"-> {'level' if t['level'] else 'SLOWER'} (limit x{t['max_slowdown']:.2f})"
+        )
+    if "cpu_slope_ms" in t:
+        b, lo, hi = t["cpu_slope_ms"]
+        lines.append(
+            f"time: windows' median CPU ms per {unit}, slope {b:+.2f} ms per {r['per']:g}"
+            f" {unit}s (95 %: {lo:+.2f} .. {hi:+.2f})"
         )
     for g in r["top_growth"][:5]:
         at = g["site"] if g["caller"] == g["site"] else f"{g['site']} (from {g['caller']})"

@@ -75,6 +75,9 @@ def test_time_verdict_compares_the_last_window_with_the_first_after_warm_up():
     assert v["first_window"] == [10, 20] and v["last_window"] == [30, 40]
     assert v["cpu_ratio"] == pytest.approx(1.2) and v["level"] is False
     assert time_verdict(windows[:3], warmup=10)["level"] is True  # 10.5 / 10: within 10 %
+    # the windows' medians 10, 10.5, 12 ms at steps 15, 25, 35: slope 0.1 ms per step (least squares)
+    slope, lo, hi = time_verdict(windows, warmup=10, per=10.0)["cpu_slope_ms"]
+    assert slope == pytest.approx(1.0) and lo < slope < hi
     assert time_verdict(windows[:1], warmup=10)["level"] is None  # nothing to compare
 
 
