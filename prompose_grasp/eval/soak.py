@@ -416,7 +416,7 @@ def format_soak(r: dict[str, Any], max_rows: int = 12) -> str:
             f" {unit}s (95 %: {lo:+.2f} .. {hi:+.2f})"
         )
     for g in r["top_growth"][:5]:
-        at = g["site"] if g["caller"] == g["site"] else f"{g['site']} (from {g['caller']})"
+        at = g["site"] if g.get("caller", g["site"]) == g["site"] else f"{g['site']} (from {g['caller']})"
         lines.append(f"  traced {g['size_diff_kib']:+.1f} KiB ({g['count_diff']:+d} blocks) at {at}")
     return "\n".join(lines)
 
