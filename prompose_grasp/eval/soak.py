@@ -221,7 +221,7 @@ def run_soak(
     tolerance_mib: float,
     trace: bool = True,
     trace_frames: int = 1,
-    progress: Callable[[str], None] | None = None,
+    progress: Callable[[str], object] | None = None,
     on_sample: Callable[[dict[str, Any]], None] | None = None,
     meta: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
@@ -449,7 +449,7 @@ def soak_track(
     trace: bool = True,
     trace_frames: int = 1,
     fps: float = 30.0,
-    progress: Callable[[str], None] | None = None,
+    progress: Callable[[str], object] | None = None,
     on_sample: Callable[[dict[str, Any]], None] | None = None,
     meta: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
