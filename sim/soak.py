@@ -77,6 +77,7 @@ def soak_episodes(
     tolerance_mib: float = 5.0,
     trace: bool = True,
     trace_frames: int = 1,
+    trim: bool = False,
     progress: Any = None,
     on_sample: Any = None,
 ) -> dict[str, Any]:
@@ -117,6 +118,7 @@ def soak_episodes(
         tolerance_mib=tolerance_mib,
         trace=trace,
         trace_frames=trace_frames,
+        trim=trim,
         progress=progress,
         on_sample=on_sample,
         meta={"scenario": scenario, "seed0": seed0},
@@ -151,6 +153,7 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--trace-frames", type=int, default=1, help="frames per traced allocation (1; more: a leak hunt)"
     )
+    p.add_argument("--trim", action="store_true", help="also the RSS after glibc malloc_trim(0)")
     p.add_argument("--json", dest="json_out", default=None, help="write the report here")
 
 
@@ -177,6 +180,7 @@ def run_from_args(args: argparse.Namespace) -> int:
             window=args.window,
             trace=not args.no_tracemalloc,
             trace_frames=args.trace_frames,
+            trim=args.trim,
             progress=show,
             on_sample=on_sample,
             meta={
@@ -195,6 +199,7 @@ def run_from_args(args: argparse.Namespace) -> int:
             window=args.window,
             trace=not args.no_tracemalloc,
             trace_frames=args.trace_frames,
+            trim=args.trim,
             progress=show,
             on_sample=on_sample,
         )

@@ -30,6 +30,7 @@ steps on a quiet machine); the same ratio for wall time is reported beside it.
 from __future__ import annotations
 
 import argparse
+import ctypes
 import gc
 import json
 import logging
@@ -53,6 +54,7 @@ __all__ = [
     "SlopeFit",
     "fit_slope",
     "format_soak",
+    "malloc_trim",
     "memory_verdict",
     "ping_pong",
     "rss_bytes",
@@ -64,6 +66,17 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 MIB = 1024.0 * 1024.0
+
+
+def malloc_trim() -> bool:
+    """Hand the C heap's free pages back to the system (glibc `malloc_trim(0)`); False where there is no
+    glibc (the soak then reports NaN for the trimmed RSS)."""
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        libc.malloc_trim(0)  # returns 1 when memory was released, 0 when there was none to release
+        return True
+    except (OSError, AttributeError):
+        return False
 
 
 def rss_bytes() -> float:
@@ -221,6 +234,7 @@ def run_soak(
     tolerance_mib: float,
     trace: bool = True,
     trace_frames: int = 1,
+    trim: bool = False,
     progress: Callable[[str], object] | None = None,
     on_sample: Callable[[dict[str, Any]], None] | None = None,
     meta: dict[str, Any] | None = None,
@@ -232,6 +246,10 @@ def run_soak(
     steps left out of the slopes and of the time windows' comparison. `trace`: run `tracemalloc` (started
     here when it is not running; what was allocated before is not traced); `trace_frames`: frames kept per
     allocation (1 is cheapest; more name the caller of numpy in `top_growth`, for a leak hunt).
+    `trim`: after each RSS sample, hand the allocator's free memory back to the system (glibc
+    `malloc_trim(0)`) and sample the RSS again (`rss_trimmed_mib`, with its own slope): RSS that rises in
+    steps and stays is either live memory or the heap's high-water mark, and the trimmed RSS tells them
+    apart. It changes what it measures a little (the next step faults the pages in again).
     `progress`: a line per sample.
     `on_sample`: the report so far, after every sample (a long run writes it out and can be stopped).
     A step that raises stops the soak early; the report says so (`n_done`, `stopped`).
@@ -254,14 +272,15 @@ def run_soak(
     def sample(i: int) -> None:
         gc.collect()
         traced = _traced_bytes() / MIB if trace else math.nan
-        samples.append(
-            {
-                "step": i,
-                "rss_mib": rss_bytes() / MIB,
-                "traced_mib": traced,
-                "wall_s": time.perf_counter() - t_start,
-            }
-        )
+        row = {
+            "step": i,
+            "rss_mib": rss_bytes() / MIB,
+            "traced_mib": traced,
+            "wall_s": time.perf_counter() - t_start,
+        }
+        if trim:
+            row["rss_trimmed_mib"] = rss_bytes() / MIB if malloc_trim() else math.nan
+        samples.append(row)
 
     def report() -> dict[str, Any]:
         return _report(
@@ -345,8 +364,8 @@ def _report(
     x0 = max(warmup, done // 2)
     fitted = [s for s in samples if s["step"] >= x0]
     memory: dict[str, Any] = {}
-    for key in ("rss_mib", "traced_mib"):
-        pts = [s for s in fitted if math.isfinite(s[key])]
+    for key in ("rss_mib", "rss_trimmed_mib", "traced_mib"):
+        pts = [s for s in fitted if math.isfinite(s.get(key, math.nan))]
         if len(pts) >= 3 and pts[-1]["step"] > pts[0]["step"]:
             fit = fit_slope([s["step"] for s in pts], [s[key] for s in pts], per=per)
             memory[key.removesuffix("_mib")] = memory_verdict(fit, tolerance_mib)
@@ -380,12 +399,15 @@ def format_soak(r: dict[str, Any], max_rows: int = 12) -> str:
     lines = [
         f"{r['n_done']}/{r['n_planned']} {unit}s" + (f" (stopped: {r['stopped']})" if r["stopped"] else "")
     ]
-    lines.append(f"{unit + 's':>10} {'RSS MiB':>9} {'traced MiB':>11} {'elapsed s':>10}")
+    trimmed = any("rss_trimmed_mib" in s for s in r["samples"])
+    head = f"{unit + 's':>10} {'RSS MiB':>9} {'traced MiB':>11} {'elapsed s':>10}"
+    lines.append(head + (f" {'trimmed RSS MiB':>16}" if trimmed else ""))
     samples = r["samples"]
     stride = max(1, math.ceil(len(samples) / max_rows))
     shown = samples[::stride] + ([samples[-1]] if (len(samples) - 1) % stride else [])
     for s in shown:
-        lines.append(f"{s['step']:>10} {s['rss_mib']:>9.1f} {s['traced_mib']:>11.2f} {s['wall_s']:>10.0f}")
+        row = f"{s['step']:>10} {s['rss_mib']:>9.1f} {s['traced_mib']:>11.2f} {s['wall_s']:>10.0f}"
+        lines.append(row + (f" {s.get('rss_trimmed_mib', math.nan):>16.1f}" if trimmed else ""))
     lines.append(f"{'window':>13} {'median wall ms':>15} {'median CPU ms':>14} {'mean wall ms':>13}")
     wins = r["windows"]
     stride = max(1, math.ceil(len(wins) / max_rows))
@@ -448,6 +470,7 @@ def soak_track(
     tolerance_mib: float = 1.0,
     trace: bool = True,
     trace_frames: int = 1,
+    trim: bool = False,
     fps: float = 30.0,
     progress: Callable[[str], object] | None = None,
     on_sample: Callable[[dict[str, Any]], None] | None = None,
@@ -495,6 +518,7 @@ def soak_track(
         tolerance_mib=tolerance_mib,
         trace=trace,
         trace_frames=trace_frames,
+        trim=trim,
         progress=progress,
         on_sample=on_sample,
         meta={"prompt": prompt, "sequence_frames": len(frames), **(meta or {})},
@@ -541,6 +565,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--trace-frames", type=int, default=1, help="frames per traced allocation (1; more: leak hunt)"
     )
+    p.add_argument("--trim", action="store_true", help="also the RSS after glibc malloc_trim(0)")
     p.add_argument("--json", dest="json_out", default=None)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
@@ -563,6 +588,7 @@ def main(argv: list[str] | None = None) -> int:
             window=args.window,
             trace=not args.no_tracemalloc,
             trace_frames=args.trace_frames,
+            trim=args.trim,
             progress=lambda line: sys.stderr.write(line + "\n"),
             on_sample=(lambda r: write_json(r, args.json_out)) if args.json_out else None,
             meta={"frames_dir": str(args.frames)},

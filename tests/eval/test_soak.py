@@ -157,3 +157,21 @@ def test_run_soak_refuses_bad_settings():
         run_soak(
             lambda i: None, 10, unit="frame", per=1.0, warmup=10, sample_every=1, window=1, tolerance_mib=1.0
         )
+
+
+def test_run_soak_samples_the_trimmed_rss_when_asked():
+    r = run_soak(
+        lambda i: None,
+        6,
+        unit="frame",
+        per=1000.0,
+        warmup=1,
+        sample_every=1,
+        window=2,
+        tolerance_mib=1.0,
+        trace=False,
+        trim=True,
+    )
+    assert all(math.isfinite(s["rss_trimmed_mib"]) for s in r["samples"])  # glibc on the test machines
+    assert {"rss", "rss_trimmed"} == set(r["memory"])  # no tracing: no traced slope
+    assert "trimmed RSS MiB" in format_soak(r)
