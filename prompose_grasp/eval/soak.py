@@ -129,7 +129,7 @@ def fit_slope(x: Sequence[float], y: Sequence[float], per: float = 1.0, confiden
 
 
 def memory_verdict(fit: SlopeFit, tolerance_mib: float) -> dict[str, Any]:
-    """{slope_mib, lo_mib, hi_mib (per `fit.per` steps), zero_in_interval, within_tolerance, flat}."""
+    """{slope_mib, lo_mib, hi_mib (per `fit.per` steps), zero_in_interval, within_tolerance, flat, grows}."""
     within = max(abs(fit.lo), abs(fit.hi)) <= tolerance_mib
     return {
         "slope_mib": fit.slope,
@@ -142,6 +142,8 @@ def memory_verdict(fit: SlopeFit, tolerance_mib: float) -> dict[str, Any]:
         "zero_in_interval": fit.contains_zero(),
         "within_tolerance": within,
         "flat": fit.contains_zero() or within,
+        # not flat and rising: a leak to look for (not flat and falling: memory handed back)
+        "grows": not (fit.contains_zero() or within) and fit.slope > 0,
     }
 
 
@@ -420,7 +422,7 @@ def format_soak(r: dict[str, Any], max_rows: int = 12) -> str:
         lines.append(
             f"{key} slope {m['slope_mib']:+.3f} MiB per {m['per']:g} {unit}s (95 %: {m['lo_mib']:+.3f} .. "
             f"{m['hi_mib']:+.3f}; {m['points']} samples, {unit}s {m['fitted_steps'][0]:.0f}-"
-            f"{m['fitted_steps'][1]:.0f}) -> {'flat' if m['flat'] else 'GROWS'}"
+            f"{m['fitted_steps'][1]:.0f}) -> {'flat' if m['flat'] else ('GROWS' if m['slope_mib'] > 0 else 'falls')}"
             f" (zero in interval: {m['zero_in_interval']}; "
             f"within +-{m['tolerance_mib']:g}: {m['within_tolerance']})"
         )

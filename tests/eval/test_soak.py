@@ -54,6 +54,9 @@ def test_flat_and_growing_series_are_told_apart():
     assert growing.lo > 3.5 and growing.hi < 4.5
     v = memory_verdict(growing, tolerance_mib=1.0)
     assert not v["zero_in_interval"] and not v["within_tolerance"] and not v["flat"]
+    assert v["grows"]
+    falling = memory_verdict(fit_slope(x, 900.0 - 0.004 * x, per=1000.0), tolerance_mib=1.0)
+    assert not falling["flat"] and not falling["grows"]  # memory handed back is no leak
     # a growth within the stated tolerance is flat though the interval excludes zero
     small = fit_slope(x, 900.0 + 1e-4 * x, per=1000.0)
     assert not small.contains_zero() and memory_verdict(small, tolerance_mib=1.0)["flat"]
