@@ -419,10 +419,11 @@ def format_soak(r: dict[str, Any], max_rows: int = 12) -> str:
             f"{w['mean_wall_ms']:>13.1f}"
         )
     for key, m in r["memory"].items():
+        verdict = "flat" if m["flat"] else ("GROWS" if m["slope_mib"] > 0 else "falls")
         lines.append(
             f"{key} slope {m['slope_mib']:+.3f} MiB per {m['per']:g} {unit}s (95 %: {m['lo_mib']:+.3f} .. "
             f"{m['hi_mib']:+.3f}; {m['points']} samples, {unit}s {m['fitted_steps'][0]:.0f}-"
-            f"{m['fitted_steps'][1]:.0f}) -> {'flat' if m['flat'] else ('GROWS' if m['slope_mib'] > 0 else 'falls')}"
+            f"{m['fitted_steps'][1]:.0f}) -> {verdict}"
             f" (zero in interval: {m['zero_in_interval']}; "
             f"within +-{m['tolerance_mib']:g}: {m['within_tolerance']})"
         )
