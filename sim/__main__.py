@@ -10,6 +10,10 @@ pick-and-place episode (`sim.pick`), writing DIR/summary.json, overlay_0.png and
 lookalikes --episodes N [--oracle-mask] [--real-meshes] [--place] [--prompts colour+name|name] [--json OUT]`:
 the closed-loop success rate over seeded episodes, with wrong-object successes and ambiguous refusals
 accounted (`sim.bench_pick`).
+
+`python -m sim soak-track [--n 10000] [--json OUT]` and `python -m sim soak-episodes [--episodes 200]
+[--json OUT]`: memory (RSS, tracemalloc) and time per step over a 10,000-frame track and over back-to-back
+pick episodes in one process (`sim.soak`).
 """
 
 from __future__ import annotations
@@ -96,6 +100,10 @@ def main(argv: list[str] | None = None) -> int:
 
     bench = sub.add_parser("bench-pick", help="closed-loop success rate over seeded episodes")
     add_arguments(bench)
+    from sim.soak import add_episode_arguments, add_track_arguments
+
+    add_track_arguments(sub.add_parser("soak-track", help="memory and time over a 10,000-frame track"))
+    add_episode_arguments(sub.add_parser("soak-episodes", help="memory and time over back-to-back episodes"))
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
@@ -103,6 +111,10 @@ def main(argv: list[str] | None = None) -> int:
             from sim.bench_pick import run_from_args
 
             return run_from_args(args)
+        if args.subcommand in ("soak-track", "soak-episodes"):
+            from sim.soak import run_from_args as run_soak_from_args
+
+            return run_soak_from_args(args)
         return _view(args) if args.subcommand == "view" else _pick(args)
     except PromposeError as exc:
         print(f"error: {exc}", file=sys.stderr)
