@@ -231,3 +231,30 @@ def test_table_embeddings_are_cached_between_processes_and_a_bad_cache_is_only_a
     monkeypatch.setenv("PROMPOSE_GRASP_CACHE", str(blocker / "sub"))
     ObjectKnowledge(_CountingEncoder(knowledge.encoder)).warm_up()
     assert "not written" in caplog.text
+
+
+def test_a_product_the_table_names_more_closely_than_the_library_is_judged_by_its_entry():
+    """A tuna can is a short cylinder (8.5 x 4 cm) whose footprint reads flat; the library's can family
+    expects a taller cylinder. For "the tuna can" the entry's size and coarse shape stand in for the family's
+    typical size and shape, so the flat-reading tuna can beats a slim cylinder of a marker's size; for the
+    family's own name ("the can") the family's terms still count."""
+    from prompose_grasp.perception.grounding.grounder import Grounder
+    from prompose_grasp.perception.grounding.score import candidate_totals, knows_more_than_family
+    from prompose_grasp.perception.grounding.types import GroundingConfig
+
+    g = Grounder(GroundingConfig())
+    grey = np.zeros(len(PALETTE))
+    grey[PALETTE.index("grey")] = 1.0
+    feats = _feats([[0.086, 0.084, 0.04], [0.033, 0.019, 0.114]], ["flat", "cylinder"], [grey, grey])
+    w = g.weights
+
+    def totals(prompt: str) -> tuple[np.ndarray, bool]:
+        parsed = parse_prompt(prompt)
+        prior, match = g._prior_for(parsed, True), g._knowledge_for(parsed)
+        t = candidate_totals(parsed, feats, g._shape_prob(parsed), None, w, noun_prior=prior, knowledge=match)
+        return t, knows_more_than_family(match, prior, w)
+
+    tuna, closer = totals("the tuna can")
+    assert closer and tuna[0] > tuna[1]
+    _, closer = totals("the can")
+    assert not closer

@@ -100,8 +100,10 @@ typical colour is usual, not certain: a blue bowl is still a bowl); only when th
 since a colour word is the user's own. Shape: the coarse shape's fit to the measured
 family. When the table names the noun more closely than the prior library does (its match's similarity
 above the library's, and a weight of at least 0.5: "sugar box" is an entry, the library only has boxes),
-its size range replaces the family's typical size in the metric size term; for a family's own name
-("bowl") both count.
+its size range and coarse shape replace the family's typical size and shape: the metric size term, the
+family's shape term and the rival families' term are left out (a tuna can is a short cylinder that reads
+flat, and the can family's shape had preferred a slim marker to it); for a family's own name ("bowl") all
+count.
 
 The returned score is sigmoid(2 (total - 1)): in (0, 1), monotone in the total, comparable within a prompt.
 The totals themselves (`candidate_totals`) give the calibrated match probabilities (`confidence`).
@@ -338,6 +340,23 @@ def _rank_term(values: np.ndarray, direction: int, plausible: np.ndarray) -> np.
     return out
 
 
+#: Two cosines of one text's embeddings closer than this are the same match: a family's own name ("can")
+#: matches its family and its table entry at 1 up to float32 rounding (1 - 5e-8 against 1.0).
+_SAME_MATCH = 1e-6
+
+
+def knows_more_than_family(knowledge: Any, noun_prior: NounPrior | None, w: ScoringWeights) -> bool:
+    """True when the knowledge table names the prompt's object more closely than the prior library's family
+    does (a product, "sugar box", against the box family): its size range and coarse shape then stand for the
+    family's typical size and shape."""
+    return (
+        knowledge is not None
+        and noun_prior is not None
+        and knowledge.weight >= w.knowledge_replaces_family_size
+        and knowledge.similarity > noun_prior.match_score + _SAME_MATCH
+    )
+
+
 def _base_terms(
     parsed: ParsedPrompt,
     feats: CandidateFeatures,
@@ -352,7 +371,10 @@ def _base_terms(
         cols = [feats.palette.index(c) for c in parsed.colours]
         share = feats.colour_shares[:, cols].max(axis=1)
         total += w.colour * (2.0 * np.clip(share / w.colour_full_share, 0.0, 1.0) - 1.0)
-    if shape_prob:
+    # a family's typical size and shape are a coarser guess than the entry of a product the table names more
+    # closely than the library does ("tuna can", a short cylinder, against the can family): they give way
+    knows_better = knows_more_than_family(knowledge, noun_prior, w)
+    if shape_prob and not knows_better:
         pmax = max(shape_prob.values())
 
         def fit(f: str) -> float:
@@ -368,15 +390,7 @@ def _base_terms(
         total += w.shape * np.where(_long_thin(feats.extents_m), np.maximum(fits, fit("elongated")), fits)
     if knowledge is not None:
         total += knowledge_terms(parsed, feats, knowledge, w)
-    # a family's typical size is a coarser guess than the range of a product the table names more closely
-    # than the library does ("sugar box" against the box family): it gives way to that range
-    knows_size = (
-        knowledge is not None
-        and noun_prior is not None
-        and knowledge.weight >= w.knowledge_replaces_family_size
-        and knowledge.similarity > noun_prior.match_score
-    )
-    if noun_prior is not None and parsed.size is None and not knows_size:
+    if noun_prior is not None and parsed.size is None and not knows_better:
         total += w.metric_size * metric_size_term(feats.extents_m, noun_prior.typical_extent_m, w)
     if (
         noun_prior is not None
@@ -458,7 +472,12 @@ def candidate_totals(
     if K == 0:
         return np.zeros(0)
     base = _base_terms(parsed, feats, shape_prob, w, noun_prior, knowledge)
-    if rivals is not None and rivals.others and noun_prior is not None:
+    if (
+        rivals is not None
+        and rivals.others
+        and noun_prior is not None
+        and not knows_more_than_family(knowledge, noun_prior, w)
+    ):
         # another family of the library that explains a candidate better takes from it (module docstring);
         # the nouns alone are compared, so the prompt's other words count the same on both sides
         own = _base_terms(parsed, rivals.own, shape_prob, w, noun_prior)
