@@ -2,21 +2,30 @@
 
 `EmulatedController` is what `ur_emulator.py` serves over the network. It holds the arm's joints, runs one
 control cycle every 2 ms (an e-Series controller's 500 Hz), integrates the commanded motion kinematically on
-the project's UR model (`load_robot`: the same DH table the planner uses), and plays the part of the URScript
-program ur_rtde uploads (``rtde_control.script``): a loop that reads a command id from
-``input_int_register_0`` and its arguments from the input registers, acknowledges on
-``output_int_register_0`` (1 = ready for a command, 2 = done with it) and reports asynchronous moves on
-``output_int_register_2`` (bit 15 running, bits 16-23 a write counter, bits 24-30 an operation id).
+the project's UR model (`load_robot`: the DH table the planner uses) and plays the part of the URScript
+program ur_rtde uploads: a loop that reads a command id from ``input_int_register_0`` and its arguments from
+the input registers, acknowledges on ``output_int_register_0`` (1 ready for a command, 2 done with it; the
+"real-time" servoj only ever answers ready) and reports asynchronous moves on ``output_int_register_2``
+(bit 15 running, bits 16-23 a write counter, bits 24-30 an operation id; a killed move reports finished).
 
-The script is not interpreted: the emulator recognises ur_rtde's control script when it arrives on a script
-port and emulates its register protocol for the commands listed in `SUPPORTED_COMMANDS`. Any other command id
-ends the program the way a URScript runtime error would (the program stops, ur_rtde sees it not running), so
-a test that strays outside the emulated subset fails loudly instead of being acknowledged falsely.
+The program is not interpreted: the emulator recognises ur_rtde's control script (register offset 0) when it
+arrives on a script port and runs its register protocol for the command ids in `SUPPORTED_COMMANDS`. Any
+other id ends the program the way a URScript runtime error would (ur_rtde then sees it not running), so a
+test that strays outside the emulated subset fails instead of being acknowledged falsely.
 
-Faults a test injects: `protective_stop`, `emergency_stop` (the arm stops in the cycle the fault occurs; a real
-arm brakes over some tens of milliseconds), and `slow_cycle` (RTDE packages are exchanged only every
-`period_s`: the motion keeps real time, the client sees state late and its inputs are applied late; later
-inputs within one period overwrite earlier ones, as on the real register interface).
+Motion is kinematic. movej: the leading joint on a trapezoid of the given speed and acceleration, the others
+in step. movel: the TCP on a straight line (orientation slerped) on a trapezoid of tool speed, joints by the
+model's closed-form IK each cycle, seeded with the last (an IK failure stops the program). servoj: a
+first-order lag with the lookahead time as time constant, within the joints' speed limits (a stand-in for the
+controller's servo filter, which also lags its setpoints). stopj / stopl decelerate along the current path at
+the given rate in that path's unit (rad/s^2 for movej, m/s^2 for movel); servo_stop (the script's stopl)
+ramps the joint velocity down at the given rate. A safety stop halts the arm in the cycle it occurs (a real
+arm brakes over some tens of milliseconds) and ends the program; the registers keep their last values.
+
+Faults a test injects: `trigger_protective_stop`, `trigger_emergency_stop`, and a slow cycle
+(`io_period_s`: RTDE packages are exchanged only that often; the motion keeps real time, clients see the
+state late, their inputs are applied late, and later packages within one period overwrite earlier ones, as on
+the real register interface).
 """
 
 from __future__ import annotations
@@ -210,11 +219,27 @@ class EmulatedController:
         self.unlock_delay_s = unlock_delay_s
         self.io_period_s = CYCLE_S
         self.commands: list[ReceivedCommand] = []
+        #: (controller time [s], command id) of every data package that carried a command id != 0: what
+        #: reached the controller, whether or not a running script took it
+        self.wire_commands: list[tuple[float, int]] = []
+        self.faults: list[tuple[float, str]] = []
         self.programs: list[str] = []
         self._async_wr_count = 0
         self._async_op_id = 0
         self._pending_inputs: dict[str, float | int] = {}
         self._inputs_owner: dict[str, int] = {}
+
+    def reset(self, q0) -> None:
+        """Back to a powered, stopped arm at `q0` with empty logs (between tests sharing one controller)."""
+        with self.lock:
+            self.q, self.qd = np.asarray(q0, dtype=np.float64), np.zeros(6)
+            self.motion, self.move_async, self.sync_busy = None, False, False
+            self.program, self.program_error, self.executing = None, None, False
+            self.protective = self.estop = False
+            self.io_period_s = CYCLE_S
+            self.tcp_pose = [0.0] * 6
+            self.model = load_robot(self.robot_name)
+            self.commands, self.wire_commands, self.faults, self.programs = [], [], [], []
 
     # ------------------------------------------------------------------------------------------ RTDE I/O
     def claim_inputs(self, session: int, names: list[str]) -> list[bool]:
@@ -234,6 +259,9 @@ class EmulatedController:
         """A data package from a client: applied at the controller's next RTDE exchange."""
         with self.lock:
             self._pending_inputs.update(zip(names, values))
+            cmd = self._pending_inputs.get("input_int_register_0", 0)
+            if "input_int_register_0" in names and cmd != 0:
+                self.wire_commands.append((self.t_s, int(cmd)))
 
     def outputs(self) -> dict:
         """The output fields a client may ask for, at this instant."""
@@ -319,15 +347,20 @@ class EmulatedController:
     # ------------------------------------------------------------------------------------------ faults
     def trigger_protective_stop(self) -> None:
         with self.lock:
-            self._safety_stop()
+            self._safety_stop("protective_stop")
             self.protective, self.t_protective = True, time.monotonic()
 
     def trigger_emergency_stop(self) -> None:
         with self.lock:
-            self._safety_stop()
+            self._safety_stop("emergency_stop")
             self.estop = True
 
-    def _safety_stop(self) -> None:
+    def note_fault(self, kind: str) -> None:
+        with self.lock:
+            self.faults.append((self.t_s, kind))
+
+    def _safety_stop(self, kind: str) -> None:
+        self.faults.append((self.t_s, kind))
         # A safety stop halts the arm and the program; the registers keep their last values (the async
         # progress register still says "running": the move thread was killed, not finished).
         self.motion, self.qd = None, np.zeros(6)
@@ -420,7 +453,11 @@ class EmulatedController:
             except _IKFailed as exc:
                 self._end_program(str(exc))
         elif cmd == CMD_SERVOJ:
-            self._log(cmd, tuple(d[0:6]), d[8], d[9], d[10])
+            # The script re-reads a real-time command every cycle until the next package replaces it; the
+            # log keeps each setpoint once.
+            args = (tuple(d[0:6]), d[8], d[9], d[10])
+            if not (self.commands and self.commands[-1].cmd == cmd and self.commands[-1].args == args):
+                self._log(cmd, *args)
             if not isinstance(self.motion, _ServoMotion) or self.motion.stop_decel is not None:
                 self._kill_async_move()
                 self.motion = _ServoMotion(self.q, self.model.max_joint_speed)
@@ -526,6 +563,8 @@ class EmulatedController:
                 "moving": self.motion is not None,
                 "t_s": self.t_s,
                 "commands": list(self.commands),
+                "wire_commands": list(self.wire_commands),
+                "faults": list(self.faults),
                 "n_programs": len(self.programs),
             }
 

@@ -7,37 +7,38 @@ with URControllerEmulator(q0) as ctrl:                      # a child process on
     ctrl.snapshot()["q"]                                      # what the emulated arm did
 ```
 
-What is emulated, written from Universal Robots' public protocol descriptions (RTDE guide, dashboard server
-commands) and from what ur_rtde's control script expects of the controller (see `ur_controller.py`), not from
-any client's code:
+Written from Universal Robots' public protocol descriptions (the RTDE guide, the dashboard server's
+commands) and from what ur_rtde 1.6's control script expects of the controller (`ur_controller.py`), not from
+any client's code. What is emulated:
 
-- **Dashboard server (29999)**: the greeting, ``PolyscopeVersion``, ``get serial number``, ``is in remote
+- **Dashboard (29999)**: the greeting, ``PolyscopeVersion``, ``get serial number``, ``is in remote
   control``, ``running``, ``programState``, ``robotmode``, ``safetystatus``, ``stop``, ``unlock protective
-  stop`` (refused for `unlock_delay_s` after the stop, as the real one refuses for 5 s), ``close safety popup``,
-  ``power on``, ``brake release``, ``quit``; anything else gets the real server's "could not understand".
-- **Script ports (30001, 30002, 30003)**: a program (a top-level ``def NAME(): ... end``) replaces the running
-  one; ur_rtde's control script is recognised and its register protocol run by `EmulatedController`.
-- **RTDE (30004)**: protocol version 2, controller version, output recipes at the requested frequency (clamped
-  to 500 Hz), input recipes with per-register ownership (``IN_USE`` when another client holds a register, as
-  the controller answers), start / pause, data packages both ways, bit-exact big-endian doubles.
-- **Faults**: `protective_stop` / `emergency_stop` now or `after_s` into the next motion command; `drop_link`
-  (every connection closed, new ones refused until `restore_link`, like a pulled cable that the OS reports
-  at once); `slow_cycle` (RTDE exchanged only every `period_s`).
+  stop`` (refused for `unlock_delay_s` after the stop, as the real one refuses for 5 s), ``close safety
+  popup``, ``power on``, ``brake release``, ``quit``; anything else: the real server's "could not understand".
+- **Script ports (30001-30003)**: a program (a top-level ``def NAME(): ... end``) replaces the running one;
+  ur_rtde's control script is recognised and its register protocol run by `EmulatedController`.
+- **RTDE (30004)**: protocol version 2, the controller version (5.11: an e-Series arm, so ur_rtde runs at
+  500 Hz), output recipes at the requested rate (at most 500 Hz), input recipes with per-register ownership
+  (``IN_USE`` while another connection holds a register, as the controller answers), start / pause,
+  data packages both ways with bit-exact big-endian doubles.
+- **Faults**: a protective stop, an e-stop, a dropped link (every connection closed and new ones refused until
+  `restore_link`, the controller itself running on), each now or `after_s` into the next motion; a slow
+  cycle (RTDE exchanged only every `period_s`).
 
 Not emulated faithfully (tests must not rely on these):
 
-- The URScript program is not interpreted: only the control script's command ids in
-  `ur_controller.SUPPORTED_COMMANDS` run; the others stop the program (like a runtime error), so a test that
-  needs them fails. Custom scripts (``sendCustomScript``) are recorded, not run. ur_rtde's upper register range
-  (offset 24) and the ExternalControl URCap path are not emulated.
-- Motion is kinematic: trapezoid profiles for movej / movel, a first-order lag for servoj, decelerations along
-  the path for stops; no dynamics, no controller servo filter, no joint-speed safety limits in movel, no
-  blending, no singularity handling beyond "IK failed stops the program". A safety stop halts the arm in one
-  cycle.
-- The primary / secondary interfaces' state streams (robot state and version messages on 30001 / 30002) are
-  not sent; ur_rtde never reads them. Timing is soft real time (a Python thread): cycles slip under load,
-  the controller time then runs slow rather than catching up more than 10 cycles.
-- A dropped link is a refused / reset connection; a real pulled cable shows as silence until TCP times out.
+- The URScript program is not interpreted: only the command ids in `ur_controller.SUPPORTED_COMMANDS` run
+  (movej, movej_ik, movel, movel_fk, servoj, servo_stop, stopj, stopl, set_tcp, is_steady, protective_stop,
+  stop script); custom scripts are recorded, not run; the upper register range and the ExternalControl URCap
+  path are absent; ``rtde_set_watchdog`` (ur_rtde's ``setWatchdog``) is not emulated.
+- Motion is kinematic (see `ur_controller.py`): no dynamics, no joint-speed safety limits in movel, no
+  blending, no controller servo filter (a first-order lag stands in); a safety stop halts the arm at once.
+- The primary / secondary interfaces' own messages (robot state, version) are never sent: ur_rtde does not
+  read them. ``stop`` answers "Stopped" even when nothing runs (ur_rtde sends it right after ending its own
+  script and treats any other answer as an error; the real server's failure case is undocumented).
+- Timing is soft real time (a Python thread): cycles slip under load; after more than 10 late cycles the
+  controller drops the backlog, so its clock then runs slow rather than racing.
+- A dropped link is a reset / refused connection; a real pulled cable is silence until TCP times out.
 """
 
 from __future__ import annotations
@@ -297,9 +298,11 @@ class _Emulator:
             )
             return "Safetystatus: " + status
         if line == "stop":
-            if not running:
-                return "Failed to execute: stop"
-            c.stop_program("stopped from the dashboard")
+            # "Stopped" also when nothing runs: ur_rtde sends "stop" right after its own stopScript has ended
+            # the program, and treats any other answer as an error (the guide lists "Failed to execute: stop"
+            # without saying when; we never answer it).
+            if running:
+                c.stop_program("stopped from the dashboard")
             return "Stopped"
         if line == "unlock protective stop":
             if c.unlock_protective_stop():
@@ -377,6 +380,7 @@ class _Emulator:
         elif kind == "emergency_stop":
             self.ctrl.trigger_emergency_stop()
         elif kind == "drop_link":
+            self.ctrl.note_fault(kind)
             self.drop_link()
         else:
             raise ValueError(f"unknown fault {kind!r}; known: protective_stop, emergency_stop, drop_link")
@@ -413,9 +417,18 @@ def _serve(host: str, q0, robot: str, unlock_delay_s: float, pipe) -> None:
             elif name == "slow_cycle":
                 ctrl.io_period_s = max(CYCLE_S, float(args[0]))
                 result = None
+            elif name == "reset":
+                emu.fault = None
+                if not emu.link_up:
+                    emu.listen()
+                ctrl.reset(args[0])
+                emu.connections = {p: 0 for p in ALL_PORTS}
+                result = None
             elif name == "release_emergency_stop":
                 ctrl.release_emergency_stop()
                 result = None
+            elif name == "unlock_protective_stop":
+                result = ctrl.unlock_protective_stop()
             else:
                 raise ValueError(f"unknown request {name!r}")
             pipe.send(("ok", result))
@@ -495,8 +508,17 @@ class URControllerEmulator:
         """Exchange RTDE packages only every `period_s` (CYCLE_S restores the normal cycle)."""
         self._call("slow_cycle", period_s)
 
+    def reset(self, q0) -> None:
+        """A powered arm at `q0`, no program, no fault, link up, empty logs (tests sharing one emulator)."""
+        self._call("reset", list(map(float, q0)))
+
     def release_emergency_stop(self) -> None:
+        """The pendant's part: e-stop released, arm powered on, brakes released."""
         self._call("release_emergency_stop")
+
+    def unlock_protective_stop(self) -> bool:
+        """The pendant's "unlock" (refused, False, within `unlock_delay_s` of the stop)."""
+        return self._call("unlock_protective_stop")
 
     def close(self) -> None:
         with suppress(OSError, BrokenPipeError):
