@@ -232,10 +232,18 @@ def test_emergency_stop_mid_move_raises_and_nothing_more_is_sent(ctrl, arm):
     ctrl.fault("emergency_stop", after_s=0.3)
     with pytest.raises(EmergencyStopError):
         arm.move_joints(HOME_Q + DQ, 0.5, 1.0)
+    with pytest.raises(EmergencyStopError):
+        arm.reconnect()  # not while the e-stop holds
     snap = ctrl.snapshot()
     ((t_fault, _),) = snap["faults"]
     assert [cmd for t, cmd in snap["wire_commands"] if t > t_fault] == []
     assert not snap["moving"]
+    # Released, powered on and brakes released on the pendant; reconnect() uploads the script again.
+    ctrl.release_emergency_stop()
+    assert _wait_for(lambda: not arm.receive_link.isEmergencyStopped())
+    arm.reconnect()
+    arm.move_joints(HOME_Q, 0.5, 1.0)
+    np.testing.assert_allclose(ctrl.snapshot()["q"], HOME_Q, atol=EXACT_RAD)
 
 
 def test_link_loss_mid_move_takes_the_stop_path_then_reconnects(ctrl, arm):
@@ -269,7 +277,12 @@ def test_link_loss_mid_move_takes_the_stop_path_then_reconnects(ctrl, arm):
 def test_a_slow_controller_cycle_delays_but_does_not_end_a_move_early(ctrl, arm):
     ctrl.slow_cycle(0.05)  # RTDE exchanged at 20 Hz instead of 500 Hz
     q1 = HOME_Q + DQ
+    t0 = time.monotonic()
     arm.move_joints(q1, 0.5, 1.0)
+    # Not reported done before the controller finished: the arm stands on the target when the call returns,
+    # after at least the 0.55 s trapezoid.
+    assert time.monotonic() - t0 >= 0.55 - 0.01
     snap = ctrl.snapshot()
     np.testing.assert_allclose(snap["q"], q1, atol=EXACT_RAD)
     assert not snap["moving"]
+    np.testing.assert_array_equal(arm.joint_positions(), snap["q"])
