@@ -219,6 +219,10 @@ class _Emulator:
     def drop_link(self) -> None:
         with self.lock:
             self.link_up = False
+            # The controller frees a client's input registers when its connection ends; done here, not
+            # when the reader thread notices, so that a client reconnecting at once finds them free.
+            for session in self.sessions:
+                self.ctrl.release_inputs(session.sid)
             for s in [*self.listeners, *self.conns]:
                 with suppress(OSError):
                     s.shutdown(socket.SHUT_RDWR)
@@ -228,6 +232,9 @@ class _Emulator:
     def close_conn(self, conn: socket.socket) -> None:
         with self.lock:
             self.conns.discard(conn)
+            for session in self.sessions:
+                if session.conn is conn:
+                    self.ctrl.release_inputs(session.sid)
             self.sessions = [s for s in self.sessions if s.conn is not conn]
         with suppress(OSError):
             conn.shutdown(socket.SHUT_RDWR)
