@@ -207,6 +207,36 @@ def test_stop_from_another_thread_ends_a_running_move(ctrl, arm):
     np.testing.assert_allclose(ctrl.snapshot()["q"], HOME_Q, atol=EXACT_RAD)
 
 
+def test_stop_from_another_thread_ends_a_servo_stream(ctrl, arm):
+    q1 = HOME_Q + np.array([0.6, 0, 0, 0, 0, 0])
+    trajectory = joint_trajectory(HOME_Q, q1, 0.3, 1.0)  # 2.3 s
+    threading.Timer(0.5, arm.stop).start()
+    t0 = time.monotonic()
+    arm.follow(trajectory)  # returns once stopped
+    assert time.monotonic() - t0 < 1.5
+    assert _wait_for(lambda: not ctrl.snapshot()["moving"])
+    snap = ctrl.snapshot()
+    ids = _ids(snap["commands"])
+    # servoStop ends the stream, and no setpoint follows it.
+    assert CMD_SERVO_STOP in ids and CMD_SERVOJ not in ids[ids.index(CMD_SERVO_STOP) :]
+    assert snap["q"][0] < q1[0] - 0.2
+
+
+def test_protective_stop_mid_servo_stream_raises_and_the_stream_ends(ctrl, arm):
+    q1 = HOME_Q + np.array([0.6, 0, 0, 0, 0, 0])
+    ctrl.fault("protective_stop", after_s=0.3)
+    with pytest.raises(ProtectiveStopError):
+        arm.follow(joint_trajectory(HOME_Q, q1, 0.3, 1.0))
+    snap = ctrl.snapshot()
+    ((t_fault, _),) = snap["faults"]
+    after = [cmd for t, cmd in snap["wire_commands"] if t > t_fault]
+    # Setpoints already on their way when the stop happened: the arm learns of it from the next state
+    # package (2 ms) and ur_rtde's servoJ then refuses to send. 25 (50 ms of stream) bounds a loaded
+    # machine's delays; nothing else (no stop command, no other move) reaches the controller.
+    assert set(after) <= {CMD_SERVOJ} and len(after) <= 25
+    assert not snap["moving"]
+
+
 def test_protective_stop_mid_move_raises_and_nothing_more_is_sent(ctrl, arm):
     ctrl.fault("protective_stop", after_s=0.3)
     with pytest.raises(ProtectiveStopError):
