@@ -140,17 +140,19 @@ def test_move_linear_moves_the_tcp_on_a_straight_line_to_the_target(ctrl, arm):
     snap = ctrl.snapshot()
     (move,) = [c for c in snap["commands"] if c.cmd == CMD_MOVEL]
     assert move.args == (tuple(pose_vector_from_T(T1).tolist()), 0.1, 0.5, True)
-    # The controller reached the target with the TCP the arm set: the model's FK of the emulated joints is
-    # T1 to the closed-form IK's accuracy (1e-9 m class; 1e-7 leaves room for the rotation-vector round trip).
-    np.testing.assert_allclose(ROBOT.fk_tcp(snap["q"]), T1, atol=1e-7)
-    np.testing.assert_allclose(arm.tcp_pose(), T1, atol=1e-7)
+    # The controller reached the target with the TCP the arm set (a wrong TCP would be 0.145 m off): the
+    # model's FK of the emulated joints is T1 within what the emulator's IK accepts (IKConfig: 1e-5 m and
+    # 1e-5 rad; most solves land near 1e-12, a few near 3e-7 m).
+    ik_tol = max(ROBOT.ik_config.position_tol_m, ROBOT.ik_config.rotation_tol_rad)
+    np.testing.assert_allclose(ROBOT.fk_tcp(snap["q"]), T1, atol=ik_tol)
+    np.testing.assert_allclose(arm.tcp_pose(), T1, atol=ik_tol)
     # On the way the TCP stayed on the segment T0 -> T1 (IK each cycle of a straight-line interpolation).
     p0, p1 = T0[:3, 3], T1[:3, 3]
     u = (p1 - p0) / np.linalg.norm(p1 - p0)
     off_line = [
         np.linalg.norm((p - p0) - u * np.dot(p - p0, u)) for p in (ROBOT.fk_tcp(q)[:3, 3] for q in samples)
     ]
-    assert len(samples) >= 10 and max(off_line) < 1e-6
+    assert len(samples) >= 10 and max(off_line) <= ROBOT.ik_config.position_tol_m
 
 
 def test_follow_streams_servoj_at_500_hz_and_ends_with_servo_stop(ctrl, arm):
