@@ -166,14 +166,21 @@ def test_follow_streams_servoj_at_500_hz_and_ends_with_servo_stop(ctrl, arm):
     q_knots = np.vstack([HOME_Q, trajectory.q])
     times = np.minimum(np.arange(int(np.ceil(t_knots[-1] / 0.002)) + 1) * 0.002, t_knots[-1])
     stream = np.stack([np.interp(times, t_knots, q_knots[:, j]) for j in range(6)], axis=1)
-    # RTDE inputs are registers: a package overwritten within one controller cycle is never seen. At least
-    # 90 % of the stream reached the script (a loaded 2-core machine delays some packages).
-    assert len(servo) >= 0.9 * len(stream)
+    # Every setpoint crossed the wire (TCP loses nothing; the hold at the end adds more of the last one),
+    # paced by ur_rtde's waitPeriod at the controller's 2 ms, not sent in a burst: the stream's packages
+    # span at least 90 % of (n - 1) x 2 ms (a burst would span almost nothing; the 10 % is a loaded
+    # machine's reader picking up the first package late).
+    arrivals = [t_wall for _, cmd, t_wall in snap["wire_commands"] if cmd == CMD_SERVOJ]
+    assert len(arrivals) >= len(stream)
+    assert arrivals[len(stream) - 1] - arrivals[0] >= 0.9 * (len(stream) - 1) * 0.002
+    # RTDE inputs are registers: two packages within one controller cycle and the script sees the later only.
+    # On an idle machine the emulated controller's cycle keeps pace and the script takes nearly every
+    # setpoint; its soft real-time cycle slips under load (88 % seen at a load of 16 on 2 cores), so at least
+    # half is asked here.
+    assert len(servo) >= 0.5 * len(stream)
     # Every setpoint the controller took is one of the stream's (doubles cross bit-exactly), in order.
     index = [int(np.flatnonzero(np.all(stream == np.array(c.args[0]), axis=1))[0]) for c in servo]
     assert np.all(np.diff(index) > 0) and index[-1] == len(stream) - 1
-    # Paced at the controller's rate: the median interval between setpoints is one 2 ms cycle.
-    assert np.median(np.diff([c.t_s for c in servo])) == pytest.approx(0.002, abs=1e-9)
     # servoStop after the last setpoint, and the arm came to rest on the end of the trajectory.
     assert _ids(snap["commands"], servo[-1].t_s)[:1] == [CMD_SERVO_STOP]
     assert not snap["moving"]
@@ -231,7 +238,7 @@ def test_protective_stop_mid_servo_stream_raises_and_the_stream_ends(ctrl, arm):
         arm.follow(joint_trajectory(HOME_Q, q1, 0.3, 1.0))
     snap = ctrl.snapshot()
     ((t_fault, _),) = snap["faults"]
-    after = [cmd for t, cmd in snap["wire_commands"] if t > t_fault]
+    after = [cmd for t, cmd, _ in snap["wire_commands"] if t > t_fault]
     # Setpoints already on their way when the stop happened: the arm learns of it from the next state
     # package (2 ms) and ur_rtde's servoJ then refuses to send. 25 (50 ms of stream) bounds a loaded
     # machine's delays; nothing else (no stop command, no other move) reaches the controller.
@@ -249,7 +256,7 @@ def test_protective_stop_mid_move_raises_and_nothing_more_is_sent(ctrl, arm):
     ((t_fault, kind),) = snap["faults"]
     assert kind == "protective_stop"
     # Nothing reached the controller after the stop: no stop command, no second move.
-    assert [cmd for t, cmd in snap["wire_commands"] if t > t_fault] == []
+    assert [cmd for t, cmd, _ in snap["wire_commands"] if t > t_fault] == []
     assert not snap["moving"] and not np.allclose(snap["q"], HOME_Q + DQ, atol=1e-3)
     # Cleared on the pendant, then reconnect(): the script runs again and the arm moves.
     time.sleep(0.25)
@@ -268,7 +275,7 @@ def test_emergency_stop_mid_move_raises_and_nothing_more_is_sent(ctrl, arm):
         arm.reconnect()  # not while the e-stop holds
     snap = ctrl.snapshot()
     ((t_fault, _),) = snap["faults"]
-    assert [cmd for t, cmd in snap["wire_commands"] if t > t_fault] == []
+    assert [cmd for t, cmd, _ in snap["wire_commands"] if t > t_fault] == []
     assert not snap["moving"]
     # Released, powered on and brakes released on the pendant; reconnect() uploads the script again.
     ctrl.release_emergency_stop()
@@ -295,7 +302,7 @@ def test_link_loss_mid_move_takes_the_stop_path_then_reconnects(ctrl, arm):
     snap = ctrl.snapshot()
     np.testing.assert_allclose(snap["q"], q1, atol=EXACT_RAD)
     ((t_fault, _),) = snap["faults"]
-    assert [cmd for t, cmd in snap["wire_commands"] if t > t_fault] == []
+    assert [cmd for t, cmd, _ in snap["wire_commands"] if t > t_fault] == []
     # The cable is back: reconnect() reopens the dropped links; ur_rtde replaces the still-running script.
     ctrl.restore_link()
     arm.reconnect()

@@ -219,9 +219,9 @@ class EmulatedController:
         self.unlock_delay_s = unlock_delay_s
         self.io_period_s = CYCLE_S
         self.commands: list[ReceivedCommand] = []
-        #: (controller time [s], command id) of every data package that carried a command id != 0: what
-        #: reached the controller, whether or not a running script took it
-        self.wire_commands: list[tuple[float, int]] = []
+        #: (controller time [s], command id, arrival wall time [s, monotonic]) of every data package that
+        #: carried a command id != 0: what reached the controller, whether or not a running script took it
+        self.wire_commands: list[tuple[float, int, float]] = []
         self.faults: list[tuple[float, str]] = []
         self.programs: list[str] = []
         self._async_wr_count = 0
@@ -261,7 +261,7 @@ class EmulatedController:
             self._pending_inputs.update(zip(names, values))
             cmd = self._pending_inputs.get("input_int_register_0", 0)
             if "input_int_register_0" in names and cmd != 0:
-                self.wire_commands.append((self.t_s, int(cmd)))
+                self.wire_commands.append((self.t_s, int(cmd), time.monotonic()))
 
     def outputs(self) -> dict:
         """The output fields a client may ask for, at this instant."""
