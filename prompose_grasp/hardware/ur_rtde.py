@@ -69,6 +69,10 @@ logger = logging.getLogger(__name__)
 #: The controller's RTDE port (fixed by Universal Robots; ur_rtde always connects there).
 RTDE_PORT = 30004
 
+#: After one link is found lost, how long the control link may take to report itself down too before a
+#: stop is sent through it (a few hundred RTDE cycles; its receive thread notices an EOF within one) [s].
+LINK_VERDICT_S = 0.25
+
 #: How long `reconnect` waits for a re-uploaded control script to run (ur_rtde's own wait at connect) [s].
 SCRIPT_START_TIMEOUT_S = 5.0
 
@@ -385,6 +389,20 @@ class URRtdeArm(Arm):
             self._lost(what)
         self._check_safety(what)
 
+    def _explain_refusal(self, what: str) -> None:
+        """The controller refused a command: raise the safety stop or lost link that explains it, if any.
+
+        ur_rtde refuses as soon as its control link sees the program stopped, and a safety stop reaches the
+        receive link a package or two later (seen against the controller emulation: a protective stop
+        mid-stream read as a plain refusal), so the links get `LINK_VERDICT_S` to agree first.
+        """
+        deadline = time.monotonic() + LINK_VERDICT_S
+        while True:
+            self._check(what)
+            if time.monotonic() > deadline:
+                return
+            time.sleep(0.005)
+
     def _check_safety(self, what: str) -> None:
         if self._receive.isEmergencyStopped():
             self._motion = None
@@ -402,6 +420,13 @@ class URRtdeArm(Arm):
     def _lost(self, what: str, cause: BaseException | None = None) -> None:
         """Connection-loss path: stop where the control link still answers, mark disconnected, raise."""
         logger.error("%s: link to the UR controller at %s lost (%s); stopping", what, self.host, cause)
+        # A cut cable shows on both links within milliseconds, but each ur_rtde interface notices on its own
+        # thread. A stop sent into a control link that is going down waits on the link's stale state for
+        # ur_rtde's execution timeout (minutes; seen against the controller emulation when the receive link
+        # noticed first), so give the control link a moment to report itself down first.
+        deadline = time.monotonic() + LINK_VERDICT_S
+        while time.monotonic() < deadline and self._control_up():
+            time.sleep(0.005)
         self._send_stop()
         self._connected = False
         detail = f" ({cause})" if cause is not None else ""
@@ -411,11 +436,17 @@ class URRtdeArm(Arm):
             "not stop when its RTDE client goes). Check the arm, then reconnect()"
         ) from cause
 
+    def _control_up(self) -> bool:
+        try:
+            return bool(self._control.isConnected())
+        except RuntimeError:
+            return False
+
     def _send_stop(self) -> None:
         motion, self._motion = self._motion, None
         c = self.config
         try:
-            if not self._control.isConnected():
+            if not self._control_up():
                 # Nothing can arrive over a dead link, and ur_rtde would wait for the stop's acknowledgement
                 # on the link's last (stale) state until its execution timeout, minutes (seen against the
                 # controller emulation), instead of failing.
@@ -513,7 +544,7 @@ class URRtdeArm(Arm):
             self._lost(what, exc)
         if not accepted:
             self._motion = None
-            self._check(what)  # a safety stop or a lost link explains a refusal
+            self._explain_refusal(what)
             raise MotionFailedError(f"{what}: the controller did not accept the command")
         t_sent = time.monotonic()
         deadline = t_sent + nominal_s + self.config.move_timeout_margin_s
@@ -572,7 +603,7 @@ class URRtdeArm(Arm):
             except RuntimeError as exc:
                 self._lost("follow", exc)
             if not ok:
-                self._check("follow")
+                self._explain_refusal("follow")
                 self._send_stop()
                 raise MotionFailedError("follow: the controller refused a servoJ command; stopped")
             self._control.waitPeriod(t_cycle)
@@ -611,7 +642,7 @@ class URRtdeArm(Arm):
             except RuntimeError as exc:
                 self._lost("follow", exc)
             if not ok:
-                self._check("follow")
+                self._explain_refusal("follow")
                 self._send_stop()
                 raise MotionFailedError("follow: the controller refused a servoJ command; stopped")
             self._control.waitPeriod(t_cycle)
