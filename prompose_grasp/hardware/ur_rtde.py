@@ -11,7 +11,9 @@ and watched until they finish, so that
 
 - a protective or emergency stop during a move raises `ProtectiveStopError` / `EmergencyStopError`;
 - a dropped link (control or receive) takes the stop path (`stopJ`/`stopL`, or `servoStop` while servoing,
-  where the control link still answers), marks the arm disconnected and raises `ConnectionLostError`;
+  where the control link still answers), marks the arm disconnected and raises `ConnectionLostError`. With
+  the control link itself gone no stop can be sent: the controller finishes the move it was given (a UR
+  controller does not stop when its RTDE client goes; a servo stream holds its last setpoint);
 - a move the controller refuses, never starts, or does not finish in time is stopped and raises
   `MotionFailedError` (the link stays up);
 - `stop()` from another thread ends the move (the blocked call then returns normally).
@@ -67,6 +69,13 @@ logger = logging.getLogger(__name__)
 #: The controller's RTDE port (fixed by Universal Robots; ur_rtde always connects there).
 RTDE_PORT = 30004
 
+#: After one link is found lost, how long the control link may take to report itself down too before a
+#: stop is sent through it (a few hundred RTDE cycles; its receive thread notices an EOF within one) [s].
+LINK_VERDICT_S = 0.25
+
+#: How long `reconnect` waits for a re-uploaded control script to run (ur_rtde's own wait at connect) [s].
+SCRIPT_START_TIMEOUT_S = 5.0
+
 #: The output recipe the receive link asks for: what the arm reads, nothing more.
 RECEIVE_VARIABLES = (
     "timestamp",
@@ -103,6 +112,8 @@ class RtdeControlLink(Protocol):
     def stopJ(self, a: float, asynchronous: bool) -> None: ...
     def stopL(self, a: float, asynchronous: bool) -> None: ...
     def stopScript(self) -> None: ...
+    def isProgramRunning(self) -> bool: ...
+    def reuploadScript(self) -> bool: ...
     def isConnected(self) -> bool: ...
     def reconnect(self) -> bool: ...
     def disconnect(self) -> None: ...
@@ -126,6 +137,7 @@ class RtdeIOLink(Protocol):
 
     def setStandardDigitalOut(self, output_id: int, signal_level: bool) -> bool: ...
     def setToolDigitalOut(self, output_id: int, signal_level: bool) -> bool: ...
+    def isConnected(self) -> bool: ...
     def reconnect(self) -> bool: ...
     def disconnect(self) -> None: ...
 
@@ -170,8 +182,11 @@ class URRtdeConfig:
         gain: servoJ proportional gain, ur_rtde accepts [100, 2000]; higher tracks tighter, may oscillate.
         poll_period_s: how often a running move is checked (progress, link, safety) [s].
         check_every_servo_steps: link and safety checks during `follow`, every this many servo cycles.
-        stop_joint_decel_rad_s2: deceleration of stopJ / servoStop [rad/s^2].
-        stop_linear_decel_m_s2: deceleration of stopL [m/s^2].
+        stop_joint_decel_rad_s2: deceleration of stopJ [rad/s^2].
+        stop_linear_decel_m_s2: deceleration of stopL and servoStop (ur_rtde's control script ends servo
+            mode with stopl) [m/s^2].
+        settle_timeout_s: after the last servoJ setpoint of `follow`, how long the arm may take to stand on
+            it (within `reached_tol_rad`) while the setpoint is held; longer raises `MotionFailedError` [s].
         move_timeout_margin_s: a move not finished this long after its trapezoid time limit is stopped and
             reported (a controller that stopped answering progress) [s].
         start_timeout_s: a move the controller never reports running, with the arm not at its target after
@@ -190,6 +205,7 @@ class URRtdeConfig:
     stop_joint_decel_rad_s2: float = 2.0
     stop_linear_decel_m_s2: float = 1.0
     move_timeout_margin_s: float = 10.0
+    settle_timeout_s: float = 1.0
     start_timeout_s: float = 1.0
     reached_tol_rad: float = 1e-3
     reached_tol_m: float = 1e-3
@@ -208,6 +224,7 @@ class URRtdeConfig:
             "stop_joint_decel_rad_s2",
             "stop_linear_decel_m_s2",
             "move_timeout_margin_s",
+            "settle_timeout_s",
             "start_timeout_s",
             "reached_tol_rad",
             "reached_tol_m",
@@ -296,21 +313,43 @@ class URRtdeArm(Arm):
         super().disconnect()
 
     def reconnect(self) -> None:
-        """Reopen the links after a `ConnectionLostError` (or a cleared safety stop) and set the TCP again."""
+        """Resume after a `ConnectionLostError`, or after a safety stop that was cleared on the pendant.
+
+        Only links that dropped are reopened: ur_rtde's `reconnect()` on a live control link opens a second
+        RTDE session whose input registers the controller refuses as IN_USE (the first still holds them),
+        and on a live link its background reconnect races ours (seen against the controller emulation: a
+        crash of the process). The controller ends the control script on a safety stop (and on a dashboard
+        stop), so when it no longer runs it is uploaded again (`reuploadScript`) and waited for; then the
+        TCP is set again. Raises the safety error while the stop is not cleared, `DeviceNotConnectedError`
+        when the controller does not answer.
+        """
         if self._control is None or self._receive is None:
             self.connect()
             return
         try:
             for link in (self._receive, self._control, self._io):
-                if link is not None and not link.reconnect():
+                if link is not None and not link.isConnected() and not link.reconnect():
                     raise RuntimeError(f"{type(link).__name__}.reconnect() returned False")
+            self._check_safety("reconnect")
+            if not self._control.isProgramRunning():
+                self._control.reuploadScript()
+                deadline = time.monotonic() + SCRIPT_START_TIMEOUT_S
+                while not self._control.isProgramRunning():
+                    if time.monotonic() > deadline:
+                        raise RuntimeError(
+                            f"the control script did not start within {SCRIPT_START_TIMEOUT_S:.0f} s of its "
+                            "upload (is a program running on the pendant, or the arm not in Remote Control?)"
+                        )
+                    time.sleep(0.01)
         except RuntimeError as exc:
             raise DeviceNotConnectedError(
                 f"could not reconnect to the UR controller at {self.host}: {exc}"
             ) from exc
         self._connected = True
         self._stop_requested.clear()
-        self._control.setTcp(pose_vector_from_T(self.robot.T_flange_tcp).tolist())
+        tcp = pose_vector_from_T(self.robot.T_flange_tcp).tolist()
+        if not self._control.setTcp(tcp):
+            raise DeviceNotConnectedError(f"the controller at {self.host} refused setTcp({tcp}) on reconnect")
 
     def _close_links(self) -> None:
         for link in (self._control, self._receive, self._io):
@@ -348,6 +387,23 @@ class URRtdeArm(Arm):
         """Raise if a link dropped (after the stop path) or the controller is in a safety stop."""
         if not self._link_ok():
             self._lost(what)
+        self._check_safety(what)
+
+    def _explain_refusal(self, what: str) -> None:
+        """The controller refused a command: raise the safety stop or lost link that explains it, if any.
+
+        ur_rtde refuses as soon as its control link sees the program stopped, and a safety stop reaches the
+        receive link a package or two later (seen against the controller emulation: a protective stop
+        mid-stream read as a plain refusal), so the links get `LINK_VERDICT_S` to agree first.
+        """
+        deadline = time.monotonic() + LINK_VERDICT_S
+        while True:
+            self._check(what)
+            if time.monotonic() > deadline:
+                return
+            time.sleep(0.005)
+
+    def _check_safety(self, what: str) -> None:
         if self._receive.isEmergencyStopped():
             self._motion = None
             raise EmergencyStopError(
@@ -364,21 +420,43 @@ class URRtdeArm(Arm):
     def _lost(self, what: str, cause: BaseException | None = None) -> None:
         """Connection-loss path: stop where the control link still answers, mark disconnected, raise."""
         logger.error("%s: link to the UR controller at %s lost (%s); stopping", what, self.host, cause)
+        # A cut cable shows on both links within milliseconds, but each ur_rtde interface notices on its own
+        # thread. A stop sent into a control link that is going down waits on the link's stale state for
+        # ur_rtde's execution timeout (minutes; seen against the controller emulation when the receive link
+        # noticed first), so give the control link a moment to report itself down first.
+        deadline = time.monotonic() + LINK_VERDICT_S
+        while time.monotonic() < deadline and self._control_up():
+            time.sleep(0.005)
         self._send_stop()
         self._connected = False
         detail = f" ({cause})" if cause is not None else ""
         raise ConnectionLostError(
-            f"{what}: the link to the UR controller at {self.host} was lost{detail}; a stop was sent where "
-            "the control link still answered (the controller also ends its script when its RTDE client "
-            "goes). Check the arm, then reconnect()"
+            f"{what}: the link to the UR controller at {self.host} was lost{detail}; a stop was sent if the "
+            "control link still answered, otherwise the controller finishes the move it was given (it does "
+            "not stop when its RTDE client goes). Check the arm, then reconnect()"
         ) from cause
+
+    def _control_up(self) -> bool:
+        try:
+            return bool(self._control.isConnected())
+        except RuntimeError:
+            return False
 
     def _send_stop(self) -> None:
         motion, self._motion = self._motion, None
         c = self.config
         try:
+            if not self._control_up():
+                # Nothing can arrive over a dead link, and ur_rtde would wait for the stop's acknowledgement
+                # on the link's last (stale) state until its execution timeout, minutes (seen against the
+                # controller emulation), instead of failing.
+                logger.error(
+                    "the control link is down: no stop can be sent; the controller finishes its move"
+                )
+                return
             if motion == "servo":
-                self._control.servoStop(c.stop_joint_decel_rad_s2)
+                # ur_rtde's script ends servo mode with stopl: servoStop takes a tool deceleration.
+                self._control.servoStop(c.stop_linear_decel_m_s2)
             elif motion == "linear":
                 self._control.stopL(c.stop_linear_decel_m_s2, False)
             else:
@@ -466,7 +544,7 @@ class URRtdeArm(Arm):
             self._lost(what, exc)
         if not accepted:
             self._motion = None
-            self._check(what)  # a safety stop or a lost link explains a refusal
+            self._explain_refusal(what)
             raise MotionFailedError(f"{what}: the controller did not accept the command")
         t_sent = time.monotonic()
         deadline = t_sent + nominal_s + self.config.move_timeout_margin_s
@@ -499,7 +577,8 @@ class URRtdeArm(Arm):
 
     def follow(self, trajectory: JointTrajectory) -> JointTrajectory:
         """Stream a timed trajectory with servoJ at `servo_rate_hz` (linear interpolation between waypoints,
-        which stays within the validated waypoint steps and speeds), then servoStop."""
+        which stays within the validated waypoint steps and speeds), hold the last setpoint until the arm
+        stands on it (`settle_timeout_s`), then servoStop."""
         self._require()
         q_now = self.joint_positions()
         sent = self.validator.validate_trajectory(trajectory, q_now)
@@ -524,14 +603,51 @@ class URRtdeArm(Arm):
             except RuntimeError as exc:
                 self._lost("follow", exc)
             if not ok:
-                self._check("follow")
+                self._explain_refusal("follow")
                 self._send_stop()
                 raise MotionFailedError("follow: the controller refused a servoJ command; stopped")
             self._control.waitPeriod(t_cycle)
+        if not self._settle(Q[-1]):
+            return sent
         self._motion = None
-        self._control.servoStop(c.stop_joint_decel_rad_s2)
+        self._control.servoStop(c.stop_linear_decel_m_s2)
         self._check("follow")
         return sent
+
+    def _settle(self, q_end: np.ndarray) -> bool:
+        """Hold the last servo setpoint until the arm stands on it (False: `stop()` was called).
+
+        The controller's servo filter trails the setpoints by about the lookahead time; servoStop right after
+        the last one would stop the arm that far short of the trajectory's end (measured against the
+        controller emulation: 6 mrad short after a 0.5 rad/s move with the 0.1 s default).
+        """
+        c = self.config
+        dt = 1.0 / c.servo_rate_hz
+        deadline = time.monotonic() + c.settle_timeout_s
+        k = 0
+        while float(np.max(np.abs(self.joint_positions() - q_end))) > c.reached_tol_rad:
+            if self._stop_requested.is_set():
+                return False
+            if time.monotonic() > deadline:
+                self._send_stop()
+                raise MotionFailedError(
+                    f"follow: the arm did not reach the trajectory's end within {c.settle_timeout_s:.1f} s "
+                    f"of the last setpoint (tolerance {c.reached_tol_rad} rad); stopped"
+                )
+            if k % c.check_every_servo_steps == 0:
+                self._check("follow")
+            t_cycle = self._control.initPeriod()
+            try:
+                ok = self._control.servoJ(q_end.tolist(), 0.0, 0.0, dt, c.lookahead_s, c.gain)
+            except RuntimeError as exc:
+                self._lost("follow", exc)
+            if not ok:
+                self._explain_refusal("follow")
+                self._send_stop()
+                raise MotionFailedError("follow: the controller refused a servoJ command; stopped")
+            self._control.waitPeriod(t_cycle)
+            k += 1
+        return True
 
     def stop(self) -> None:
         """Decelerate to a stop now (stopJ / stopL / servoStop by what is running); callable from another

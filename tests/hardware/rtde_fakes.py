@@ -21,6 +21,7 @@ class FakeControl:
         self.log = log
         self.moving_polls = moving_polls
         self.connected = True
+        self.program_running = True
         self._polls_left = 0
         #: a `FakeReceive` that takes each move's target as the arm's new state (None: the state stays)
         self.receive: FakeReceive | None = None
@@ -63,6 +64,8 @@ class FakeControl:
 
     def servoJ(self, q, speed, acceleration, time, lookahead_time, gain):
         self._call("servoJ", list(q), speed, acceleration, time, lookahead_time, gain)
+        if self.receive is not None:  # the stand-in tracks setpoints without lag
+            self.receive.q = list(q)
         return True
 
     def waitPeriod(self, t_cycle_start):
@@ -80,6 +83,15 @@ class FakeControl:
 
     def stopScript(self):
         self._call("stopScript")
+        self.program_running = False
+
+    def isProgramRunning(self):
+        return self.program_running
+
+    def reuploadScript(self):
+        self._call("reuploadScript")
+        self.program_running = True
+        return True
 
     def isConnected(self):
         return self.connected
@@ -142,6 +154,9 @@ class FakeIO:
 
     def setToolDigitalOut(self, output_id, signal_level):
         self.log.append(("setToolDigitalOut", (output_id, signal_level)))
+        return True
+
+    def isConnected(self):
         return True
 
     def reconnect(self):

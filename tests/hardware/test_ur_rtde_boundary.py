@@ -141,14 +141,23 @@ def test_validator_refusals_never_reach_the_wire(bad):
         assert arm.is_connected
 
 
-def test_control_link_lost_mid_move_takes_the_stop_path_and_raises():
+@pytest.mark.parametrize(
+    ("link_reports_down", "after_polls"),
+    [
+        # The link is down: no stop is attempted (ur_rtde would wait minutes on the dead link's stale state).
+        (True, []),
+        # A call failed but the link still says it is up: the stop is sent.
+        (False, ["stopJ"]),
+    ],
+)
+def test_control_link_lost_mid_move_takes_the_stop_path_and_raises(link_reports_down, after_polls):
     arm, control, _, log, _ = make_arm(moving_polls=100)
     polls = []
 
     def drop():
         polls.append(1)
         if len(polls) == 3:
-            control.connected = False
+            control.connected = not link_reports_down
             raise RuntimeError("RTDE control: socket closed")
 
     control.hooks["getAsyncOperationProgress"] = drop
@@ -156,7 +165,7 @@ def test_control_link_lost_mid_move_takes_the_stop_path_and_raises():
     with pytest.raises(ConnectionLostError, match="lost"):
         arm.move_joints(HOME_Q + 0.05, 0.5, 1.0)
     names = log.names()
-    assert names[names.index("moveJ") + 1 :] == ["getAsyncOperationProgress"] * 3 + ["stopJ"]
+    assert names[names.index("moveJ") + 1 :] == ["getAsyncOperationProgress"] * 3 + after_polls
     assert not arm.is_connected
     with pytest.raises(DeviceNotConnectedError):
         arm.move_joints(HOME_Q, 0.5, 1.0)
