@@ -7,11 +7,12 @@ rose less than half the lift and some of its seen points lie on the support: a p
 its rim, its handle on the table). What is held must be the object named (`wrong_object`).
 
 Verification fails closed. A re-observation frame must have depth readings on at least half the pixels the
-pick's view had them on, in the object's projected box (`depth_gone`: a dropout): a frame that fails is
-captured again, `camera_retries` times in all; then a lifted object is set down where it was picked
-(`set_down`) and the run ends "camera_failed". A re-observation that finds no object is judged on the raw
-depth where the object stood (`vacated`): still reading its surface is "slipped", no longer reading it (seen
-past it, or the hand in front) is a lift, too few readings there is no evidence ("camera_failed", set down).
+pick's view had them on (`depth_gone`: a sensor dropout): a frame that fails is captured again,
+`camera_retries` times in all; then a lifted object is set down where it was picked (`set_down`) and the run
+ends "camera_failed". A re-observation that finds no object is judged on the raw depth where the object stood
+(`vacated`): still reading its surface is "slipped", no longer reading it (seen past it, or the hand in
+front) is a lift; too few readings there is a lift only while the gripper holds something (the held object
+nearer than the sensor reads), else no evidence ("camera_failed", set down).
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ import numpy as np
 
 from prompose_grasp.errors import UnreachableError, UnsafeCommandError
 from prompose_grasp.geometry.pointcloud import back_project, valid_depth_mask
-from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.geometry.se3 import invert_T, transform_points
 from prompose_grasp.grasp import ObjectModel, Plane
 from prompose_grasp.grasp.extent import top_height
@@ -57,9 +57,9 @@ _MIN_JAW_FLOOR_M = 0.001
 _RESTING_M = 0.015
 _RESTING_SHARE = 0.01
 _RESTING_MIN_POINTS = 3
-#: A re-observation is trusted only with depth readings on at least this share of the pixels that had one
-#: where the object stood in the pick's view (the object's box, projected): the lifted object, the hand and
-#: the table behind them all give readings; a depth dropout (a sensor fault, a saturated projector) does not.
+#: A re-observation is trusted only with depth readings on at least this share of the pixels that had one in
+#: the pick's view: a lift changes the readings where the object stood and where the hand passes, a small part
+#: of the image; a sensor fault or a saturated projector takes them from the whole frame.
 _DEPTH_KEPT_SHARE = 0.5
 #: A depth reading within this of where the pick's view saw the object's surface is that surface (sensor
 #: noise at ~1 m is a few millimetres to 1 cm; a lifted object is at least 10 cm from where it stood) [m].
@@ -119,6 +119,11 @@ def reobserve(
         # is still there; no longer (seen past it, or something in front: the hand, the object in it),
         # it is not where it stood.
         gone = vacated(run.last_raw_frame, obs)
+        if gone is None and loop.gripper.grasp_detected():
+            # no readings where it stood, and the gripper holds something: the object in the hand is in
+            # front of that place, nearer than the sensor reads (a camera's minimum range); an object that
+            # fell back or never rose would leave the jaws or the cup empty
+            return
         if gone is None:
             set_down(
                 loop, run, grasp, "the lift could not be verified: the re-observation sees no object and too "
@@ -240,40 +245,19 @@ def seen_heights(est: ObjectEstimate, frame: RGBDFrame, support: Plane | None) -
     return support.height(transform_points(np.asarray(frame.T_base_cam, dtype=np.float64), pts))
 
 
-def _box_window(frame: RGBDFrame, pose_base: Pose9D) -> tuple[int, int, int, int] | None:
-    """Pixel window (u0, u1, v0, v1), end-exclusive, of a box in base seen in `frame`: the bounds of its
-    projected corners, clipped to the image; None when a corner lies behind the camera or the window is
-    empty."""
-    T_cam_base = invert_T(np.asarray(frame.T_base_cam, dtype=np.float64))
-    X = transform_points(T_cam_base, pose_base.corners())
-    if np.any(X[:, 2] <= 0):
-        return None
-    K = frame.intrinsics
-    u = K.fx * X[:, 0] / X[:, 2] + K.cx
-    v = K.fy * X[:, 1] / X[:, 2] + K.cy
-    u0, u1 = max(0, math.floor(u.min())), min(K.width, math.ceil(u.max()) + 1)
-    v0, v1 = max(0, math.floor(v.min())), min(K.height, math.ceil(v.max()) + 1)
-    return None if u0 >= u1 or v0 >= v1 else (u0, u1, v0, v1)
-
-
 def depth_gone(frame: RGBDFrame, obs: Observation) -> str | None:
-    """Why a re-observation frame cannot be trusted about the object of `obs`, or None: where the object stood
-    (its box, projected), it has depth readings on fewer than `_DEPTH_KEPT_SHARE` of the pixels the pick's
-    view had them on."""
-    before_win, now_win = _box_window(obs.frame, obs.target.pose), _box_window(frame, obs.target.pose)
-    if before_win is None:
-        return None  # the pick's view did not hold the box: nothing to compare with
-    u0, u1, v0, v1 = before_win
-    had = int(np.count_nonzero(valid_depth_mask(obs.frame.depth_m[v0:v1, u0:u1])))
+    """Why a re-observation frame cannot be trusted, or None: it has depth readings on fewer than
+    `_DEPTH_KEPT_SHARE` of the pixels the pick's view had them on, over the whole image. A sensor fault or a
+    saturated projector takes the frame's readings; a lifted object takes only those where it stood (a
+    carton lifted towards a camera above a conveyor comes inside the sensor's minimum range), which
+    `vacated` judges."""
+    had = int(np.count_nonzero(valid_depth_mask(obs.frame.depth_m)))
     if had == 0:
         return None
-    has = 0
-    if now_win is not None:
-        u0, u1, v0, v1 = now_win
-        has = int(np.count_nonzero(valid_depth_mask(frame.depth_m[v0:v1, u0:u1])))
+    has = int(np.count_nonzero(valid_depth_mask(frame.depth_m)))
     if has >= _DEPTH_KEPT_SHARE * had:
         return None
-    return f"the depth is gone where the object stood ({has} readings there, the pick's view had {had})"
+    return f"the depth is gone from the frame ({has} readings, the pick's view had {had})"
 
 
 def vacated(frame: RGBDFrame | None, obs: Observation) -> bool | None:

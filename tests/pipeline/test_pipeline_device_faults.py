@@ -320,21 +320,46 @@ def test_seeing_nothing_where_the_object_stood_is_seen_empty_is_a_lift():
     assert outcome.success, outcome.message
 
 
-def test_seeing_nothing_and_no_depth_where_it_stood_is_no_lift():
-    # After the lift the depth has a hole just over where the box stood (the rest of the frame reads): the
-    # readings there are what the lift is judged on, so the frame is not trusted: camera_failed, set down.
-    class HoleOverTheBox(BoxCamera):
-        def capture(self):
-            frame = super().capture()
-            if self.calls == 1:
-                return frame
-            depth = frame.depth_m.copy()
-            depth[0:25, 65:95] = 0.0  # the box's window (u 71-88, v 2-22) and a margin
-            return RGBDFrame(frame.rgb, depth, K, frame.timestamp_s, frame.T_base_cam)
+class _HoleOverTheBox(BoxCamera):
+    """After the pick's frame, the depth has a hole just over where the box stood (the rest of the frame
+    reads): no reading tells whether the box left."""
 
-    outcome, gripper = _run_reobserve(HoleOverTheBox(), SeesNothingAfterTheFirst())
-    assert outcome.reason == "camera_failed" and "depth is gone" in outcome.message, outcome.message
+    def capture(self):
+        frame = super().capture()
+        if self.calls == 1:
+            return frame
+        depth = frame.depth_m.copy()
+        depth[0:25, 65:95] = 0.0  # the box's window (u 71-88, v 2-22) and a margin
+        return RGBDFrame(frame.rgb, depth, K, frame.timestamp_s, frame.T_base_cam)
+
+
+def test_seeing_nothing_and_no_depth_where_it_stood_with_empty_jaws_is_no_lift():
+    # The jaws held the box when they closed and report nothing by the re-observation (it slipped out): no
+    # reading tells where it is, so no lift: camera_failed, the hand set down and opened.
+    class LostAfterTheCheck(FaultyGripper):
+        checks = 0
+
+        def grasp_detected(self):
+            self.checks += 1
+            return self.checks == 1
+
+    cfg = PickConfig(reobserve=True, max_estimates=1, grasps_per_estimate=1)
+    arm, gripper = FakeArm(ROBOT), LostAfterTheCheck()
+    arm.connect()
+    gripper.connect()
+    estimator = SeesNothingAfterTheFirst()
+    pnp = PickAndPlace(arm, gripper, _HoleOverTheBox(), estimator, ROBOT, "parallel_jaw", config=cfg)
+    outcome = pnp.run(PICK)
+    assert outcome.reason == "camera_failed" and "too few depth readings" in outcome.message, outcome.message
+    assert gripper.checks >= 2  # the re-observation asked the gripper
     assert gripper.commands[-1] == "open"
+
+
+def test_seeing_nothing_and_no_depth_where_it_stood_while_holding_is_a_lift():
+    # The jaws hold the 5 cm box and the depth has no reading where it stood: the box in the hand is in front
+    # of that place, nearer than the sensor reads (a carton lifted towards a camera above a conveyor).
+    outcome, _ = _run_reobserve(_HoleOverTheBox(), SeesNothingAfterTheFirst())
+    assert outcome.success, outcome.message
 
 
 def test_a_camera_that_changes_mode_between_rounds_is_camera_failed():
