@@ -475,3 +475,15 @@ def test_support_offset_must_be_finite():
     pts = _superquadric_points(rng, np.array([0.05, 0.04, 0.03]), 0.5, 0.5, 100)
     with pytest.raises(InvalidInputError, match="support_offset_m"):
         fit_superquadric(pts, up=(0.0, 1.0, 0.0), support_offset_m=float("nan"))
+
+
+def test_a_support_far_below_a_small_seen_patch_still_fits():
+    """A wrist camera sees the top 2 cm of a 40 cm object standing on a plane: the half-height the plane
+    implies is ten times the seen points' span, beyond the free fit's bound, and the fit still runs."""
+    rng = np.random.default_rng(2)
+    top = np.column_stack(
+        [rng.uniform(-0.02, 0.02, 300), rng.uniform(0.38, 0.40, 300), rng.uniform(-0.02, 0.02, 300)]
+    )
+    fit = fit_superquadric(top, up=(0.0, 1.0, 0.0), support_offset_m=0.0)
+    assert np.all(np.isfinite(fit.size_m))
+    assert fit.T_frame_sq[1, 3] == pytest.approx(0.5 * fit.size_m[1], abs=1e-9)  # on the plane

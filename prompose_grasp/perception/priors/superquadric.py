@@ -198,6 +198,10 @@ def fit_superquadric(
     n_centre = len(centre0)
     lower = np.array([1e-4 * span] * 3 + [EXPONENT_BOUNDS[0]] * 2 + [-np.inf] * (n_centre + 1))
     upper = np.array([2.0 * span] * 3 + [EXPONENT_BOUNDS[1]] * 2 + [np.inf] * (n_centre + 1))
+    # standing on a plane far below the seen points (a wrist camera's view of a part of a tall object), the
+    # half-height reaches down to the plane: it may exceed twice the points' own span
+    upper[1] = max(upper[1], 1.5 * half0[1])
+    half0 = np.clip(half0, lower[:3], upper[:3])
     best = None
     # Two starts, a rounded and a boxy one: the exponents' cost landscape has a ridge between them.
     for e0 in (0.3, 1.0):
