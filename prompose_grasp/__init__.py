@@ -14,7 +14,9 @@ The curated public API lives here; subpackages hold the rest:
 """
 
 from importlib.metadata import version as _version
+from typing import TYPE_CHECKING
 
+from prompose_grasp._lazy import attach
 from prompose_grasp.errors import (
     AmbiguousObjectError,
     CameraError,
@@ -28,20 +30,66 @@ from prompose_grasp.errors import (
     UnreachableError,
     UnsafeCommandError,
 )
-from prompose_grasp.geometry import Pose9D
-from prompose_grasp.grasp import GraspConfig, ObjectModel, Plane, plan_grasps
-from prompose_grasp.perception import Estimate, ProMPose
-from prompose_grasp.pipeline import PickAndPlace, PickConfig, PickOutcome
-from prompose_grasp.robot import (
-    Arm,
-    CommandValidator,
-    FakeArm,
-    Gripper,
-    IKResult,
-    RGBDCamera,
-    RGBDFrame,
-    RobotModel,
-    load_robot,
+
+if TYPE_CHECKING:  # what the lazy attributes below resolve to, for type checkers and readers
+    from prompose_grasp.geometry import Pose9D
+    from prompose_grasp.grasp import GraspConfig, ObjectModel, Plane, plan_grasps
+    from prompose_grasp.perception import Estimate, ProMPose
+    from prompose_grasp.pipeline import PickAndPlace, PickConfig, PickOutcome
+    from prompose_grasp.robot import (
+        Arm,
+        CommandValidator,
+        FakeArm,
+        Gripper,
+        IKResult,
+        RGBDCamera,
+        RGBDFrame,
+        RobotModel,
+        load_robot,
+    )
+
+__getattr__, __dir__ = attach(
+    __name__,
+    {
+        "prompose_grasp.geometry": ("Pose9D",),
+        "prompose_grasp.grasp": (
+            "GraspConfig",
+            "ObjectModel",
+            "Plane",
+            "plan_grasps",
+        ),
+        "prompose_grasp.perception": (
+            "Estimate",
+            "ProMPose",
+        ),
+        "prompose_grasp.pipeline": (
+            "PickAndPlace",
+            "PickConfig",
+            "PickOutcome",
+        ),
+        "prompose_grasp.robot": (
+            "Arm",
+            "CommandValidator",
+            "FakeArm",
+            "Gripper",
+            "IKResult",
+            "RGBDCamera",
+            "RGBDFrame",
+            "RobotModel",
+            "load_robot",
+        ),
+    },
+    submodules=(
+        "cli",
+        "errors",
+        "eval",
+        "geometry",
+        "grasp",
+        "hardware",
+        "perception",
+        "pipeline",
+        "robot",
+    ),
 )
 
 __version__ = _version("prompose-grasp")
