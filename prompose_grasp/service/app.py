@@ -12,7 +12,8 @@ another process) should pay once. The service loads the estimator when it starts
 Requests are served one at a time by the estimator (its caches are not shared across threads): others wait
 in a queue of `ServiceConfig.max_queue`, beyond which the answer is 503 (retry later), never a crash. Bad
 input is a 400 whose `error` is the one-line message the CLI prints for the same input; a body larger than
-`max_body_bytes` is a 413. With a token, every route but health wants `Authorization: Bearer <token>`.
+`max_body_bytes` is a 413, refused from its Content-Length before it is read. With a token, every route
+but health and the schema wants `Authorization: Bearer <token>`.
 """
 
 # No `from __future__ import annotations`: FastAPI reads the request models of the routes from their
@@ -90,6 +91,10 @@ def _rss_mb() -> float | None:
 
 def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split())
+
+
+#: Routes answered without the token: liveness, and the API's description (nothing of the estimator's).
+_PUBLIC_PATHS = frozenset({"/v1/health", "/openapi.json", "/docs", "/docs/oauth2-redirect", "/redoc"})
 
 
 class _Busy(Exception):
@@ -203,9 +208,11 @@ def create_app(config: ServiceConfig | None = None, estimator: Any | None = None
                     f"request body of {length} bytes is larger than the limit of "
                     f"{config.max_body_bytes} bytes",
                 )
-        if config.token is not None and request.url.path != "/v1/health":
+        if config.token is not None and request.url.path not in _PUBLIC_PATHS:
             given = request.headers.get("authorization", "")
             if not secrets.compare_digest(given.encode(), f"Bearer {config.token}".encode()):
+                # read the (size-checked) body first: a client still sending would see a broken pipe, not 401
+                await request.body()
                 return error(401, "missing or wrong bearer token", {"WWW-Authenticate": "Bearer"})
         return await call_next(request)
 
