@@ -44,11 +44,16 @@ class EmbeddingStore:
     Args:
         path: the file (`texts`: (N,) str, `embeddings`: (N, D) float32).
         dim: the embedding width D; a file of another width is ignored (recomputed) with a log line.
+        shipped: a read-only file of the same format installed with the package (the fixed vocabularies,
+            `perception.shipped_embeddings`), read under `path`'s rows; used only when its `key` entry is
+            `shipped_key` (the encoder it was computed with).
     """
 
-    def __init__(self, path: Path, dim: int):
+    def __init__(self, path: Path, dim: int, shipped: Path | None = None, shipped_key: str = ""):
         self.path = Path(path)
         self.dim = int(dim)
+        self.shipped = shipped
+        self.shipped_key = shipped_key
         self._rows: dict[str, np.ndarray] | None = None
         self._pending: dict[str, np.ndarray] = {}
         self._first_pending_s = 0.0
@@ -56,27 +61,36 @@ class EmbeddingStore:
         self._lock = threading.Lock()
         self._exit_hook = False
 
-    def _read(self) -> dict[str, np.ndarray]:
+    def _read(self, path: Path | None = None, key: str | None = None) -> dict[str, np.ndarray]:
+        path = path or self.path
         try:
-            with np.load(self.path, allow_pickle=False) as z:
+            with np.load(path, allow_pickle=False) as z:
                 texts, E = z["texts"], z["embeddings"]
+                if key is not None and str(z["key"]) != key:
+                    log.info("shipped embeddings %s are of another encoder; embedding again", path)
+                    return {}
         except FileNotFoundError:
             return {}
         except (OSError, ValueError, KeyError) as exc:
-            log.info("embedding cache %s unreadable (%s); embedding again", self.path, exc)
+            log.info("embedding cache %s unreadable (%s); embedding again", path, exc)
             return {}
         if E.ndim != 2 or E.shape != (len(texts), self.dim) or not np.all(np.isfinite(E)):
             log.info(
-                "embedding cache %s does not fit this encoder (shape %s); embedding again", self.path, E.shape
+                "embedding cache %s does not fit this encoder (shape %s); embedding again", path, E.shape
             )
             return {}
         return {str(t): e for t, e in zip(texts.tolist(), E.astype(np.float32))}
+
+    def _read_all(self) -> dict[str, np.ndarray]:
+        rows = {} if self.shipped is None else self._read(self.shipped, self.shipped_key)
+        rows.update(self._read())
+        return rows
 
     def get(self, texts: Sequence[str]) -> dict[str, np.ndarray]:
         """The stored embeddings of those `texts` that are stored (the file is read on the first call)."""
         with self._lock:
             if self._rows is None:
-                self._rows = self._read()
+                self._rows = self._read_all()
             return {t: self._rows[t] for t in texts if t in self._rows}
 
     def put(self, texts: Sequence[str], embeddings: np.ndarray) -> None:
@@ -84,7 +98,7 @@ class EmbeddingStore:
         E = np.asarray(embeddings, dtype=np.float32).reshape(len(texts), self.dim)
         with self._lock:
             if self._rows is None:
-                self._rows = self._read()
+                self._rows = self._read_all()
             new = {t: e for t, e in zip(texts, E) if t not in self._rows}
             if not new:
                 return

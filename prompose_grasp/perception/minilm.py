@@ -1,150 +1,148 @@
-"""all-MiniLM-L6-v2 in plain torch: the BERT encoder and its tokenizer, loaded from the local model folder.
+"""all-MiniLM-L6-v2 in numpy: the BERT encoder and its tokenizer, loaded from the local model folder.
 
-sentence-transformers computes the same embeddings, but importing it (it imports `transformers` and its
-model registry) cost ~5 s on top of torch's own ~1.8 s on a 2-core machine: most of a cold `prompose-grasp
-estimate` call. The model itself is a 6-layer BERT (docs: the folder's `config.json`) with mean pooling
-over the attention mask and L2 normalisation (`1_Pooling/config.json`, `modules.json`), which this module
-spells out in ~100 lines; the tokenizer is the folder's own `tokenizer.json` through `tokenizers` (the Rust
-WordPiece tokenizer that sentence-transformers uses as well). tests/perception/test_text.py checks the
-embeddings and token features against sentence-transformers on the same folder.
+Profiled on a cold `prompose-grasp estimate` (2 cores): importing sentence-transformers cost ~5 s on top of
+torch's own ~2 s, and torch was imported for nothing but the text encoder (the embedded estimator's fit is
+numpy + scipy). A prompt is a few phrases of a handful of tokens: a 6-layer, 384-wide BERT over them is a
+few dozen small matrix products, milliseconds in numpy. So the model is spelled out here in numpy (~100
+lines: embeddings, 6 x (self-attention, feed-forward, LayerNorm), then the attention-mask mean and L2
+normalisation of `1_Pooling/config.json` / `modules.json`), its weights read from `model.safetensors` as
+numpy arrays, and the tokenizer is the folder's own `tokenizer.json` through `tokenizers` (the Rust
+WordPiece tokenizer sentence-transformers uses as well). Neither import loads torch.
+tests/perception/test_text.py checks embeddings and token features against sentence-transformers.
 """
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
-import torch
-from torch import nn
+import numpy as np
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.perception.minilm_config import BertConfig, read_config
 
-__all__ = ["BertConfig", "BertModel", "load_minilm", "load_tokenizer", "read_config"]
+__all__ = ["BertConfig", "NumpyBert", "load_minilm", "load_tokenizer", "read_config"]
 
 #: Weights in the folder's file that the sentence embedding does not use: BERT's pooler (the [CLS] head,
-#: unused by mean pooling) and the position-id buffer (recomputed here).
-_UNUSED_KEYS = ("embeddings.position_ids", "pooler.dense.weight", "pooler.dense.bias")
+#: unused by mean pooling) and the position-id buffer (positions are 0..L-1).
+_UNUSED_KEYS = frozenset({"embeddings.position_ids", "pooler.dense.weight", "pooler.dense.bias"})
 
 
-class _Embeddings(nn.Module):
-    def __init__(self, c: BertConfig):
-        super().__init__()
-        self.word_embeddings = nn.Embedding(c.vocab_size, c.hidden_size, padding_idx=0)
-        self.position_embeddings = nn.Embedding(c.max_position_embeddings, c.hidden_size)
-        self.token_type_embeddings = nn.Embedding(c.type_vocab_size, c.hidden_size)
-        self.LayerNorm = nn.LayerNorm(c.hidden_size, eps=c.layer_norm_eps)
-
-    def forward(self, input_ids: torch.Tensor) -> torch.Tensor:
-        positions = torch.arange(input_ids.shape[1], device=input_ids.device)
-        x = self.word_embeddings(input_ids) + self.position_embeddings(positions)[None]
-        x = x + self.token_type_embeddings.weight[0]  # one segment: every token type is 0
-        return self.LayerNorm(x)
+def _layer_norm(x: np.ndarray, w: np.ndarray, b: np.ndarray, eps: float) -> np.ndarray:
+    mu = x.mean(axis=-1, keepdims=True)
+    var = np.square(x - mu).mean(axis=-1, keepdims=True)
+    return (x - mu) / np.sqrt(var + eps) * w + b
 
 
-class _SelfAttention(nn.Module):
-    def __init__(self, c: BertConfig):
-        super().__init__()
-        self.heads = c.num_attention_heads
-        self.query = nn.Linear(c.hidden_size, c.hidden_size)
-        self.key = nn.Linear(c.hidden_size, c.hidden_size)
-        self.value = nn.Linear(c.hidden_size, c.hidden_size)
+def _gelu(x: np.ndarray) -> np.ndarray:
+    """The exact (erf) GELU of BERT's "gelu"."""
+    from scipy.special import erf
 
-    def forward(self, x: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
-        n, length, d = x.shape
-
-        def split(t: torch.Tensor) -> torch.Tensor:  # (N, L, D) -> (N, heads, L, D / heads)
-            return t.view(n, length, self.heads, d // self.heads).transpose(1, 2)
-
-        q, k, v = split(self.query(x)), split(self.key(x)), split(self.value(x))
-        scores = (q @ k.transpose(-1, -2)) / math.sqrt(d // self.heads)
-        scores = scores.masked_fill(~keep[:, None, None, :], torch.finfo(scores.dtype).min)
-        out = torch.softmax(scores, dim=-1) @ v
-        return out.transpose(1, 2).reshape(n, length, d)
+    return 0.5 * x * (1.0 + erf(x / np.float32(np.sqrt(2.0))))
 
 
-class _DenseNorm(nn.Module):
-    """BERT's `output` blocks: dense, then LayerNorm of the sum with the block's input."""
+class NumpyBert:
+    """A BERT encoder (no pooler) over float32 numpy weights named as in the Hugging Face checkpoint.
 
-    def __init__(self, d_in: int, c: BertConfig):
-        super().__init__()
-        self.dense = nn.Linear(d_in, c.hidden_size)
-        self.LayerNorm = nn.LayerNorm(c.hidden_size, eps=c.layer_norm_eps)
+    Args:
+        config: the model's sizes (`read_config`).
+        weights: parameter name -> array, exactly the checkpoint's names less `_UNUSED_KEYS` (a missing or
+            extra name, or a wrong shape, is an error: the strict load of a `torch.nn.Module`).
+    """
 
-    def forward(self, h: torch.Tensor, residual: torch.Tensor) -> torch.Tensor:
-        return self.LayerNorm(self.dense(h) + residual)
-
-
-class _Attention(nn.Module):
-    def __init__(self, c: BertConfig):
-        super().__init__()
-        self.self = _SelfAttention(c)
-        self.output = _DenseNorm(c.hidden_size, c)
-
-    def forward(self, x: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
-        return self.output(self.self(x, keep), x)
-
-
-class _Intermediate(nn.Module):
-    def __init__(self, c: BertConfig):
-        super().__init__()
-        self.dense = nn.Linear(c.hidden_size, c.intermediate_size)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return nn.functional.gelu(self.dense(x))  # the exact (erf) GELU of BERT's "gelu"
-
-
-class _Layer(nn.Module):
-    def __init__(self, c: BertConfig):
-        super().__init__()
-        self.attention = _Attention(c)
-        self.intermediate = _Intermediate(c)
-        self.output = _DenseNorm(c.intermediate_size, c)
-
-    def forward(self, x: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
-        a = self.attention(x, keep)
-        return self.output(self.intermediate(a), a)
-
-
-class _Encoder(nn.Module):
-    def __init__(self, c: BertConfig):
-        super().__init__()
-        self.layer = nn.ModuleList(_Layer(c) for _ in range(c.num_hidden_layers))
-
-
-class BertModel(nn.Module):
-    """A BERT encoder (no pooler): token ids -> last hidden states. Parameter names match the Hugging Face
-    checkpoint, so its `model.safetensors` loads with `strict=True` (less `_UNUSED_KEYS`)."""
-
-    def __init__(self, config: BertConfig):
-        super().__init__()
+    def __init__(self, config: BertConfig, weights: dict[str, np.ndarray]):
         self.config = config
-        self.embeddings = _Embeddings(config)
-        self.encoder = _Encoder(config)
+        c, d = config, config.hidden_size
+        expected = {
+            "embeddings.word_embeddings.weight": (c.vocab_size, d),
+            "embeddings.position_embeddings.weight": (c.max_position_embeddings, d),
+            "embeddings.token_type_embeddings.weight": (c.type_vocab_size, d),
+            "embeddings.LayerNorm.weight": (d,),
+            "embeddings.LayerNorm.bias": (d,),
+        }
+        for i in range(c.num_hidden_layers):
+            p = f"encoder.layer.{i}."
+            for name in ("attention.self.query", "attention.self.key", "attention.self.value",
+                         "attention.output.dense"):  # fmt: skip
+                expected[p + name + ".weight"] = (d, d)
+                expected[p + name + ".bias"] = (d,)
+            expected[p + "intermediate.dense.weight"] = (c.intermediate_size, d)
+            expected[p + "intermediate.dense.bias"] = (c.intermediate_size,)
+            expected[p + "output.dense.weight"] = (d, c.intermediate_size)
+            expected[p + "output.dense.bias"] = (d,)
+            for norm in ("attention.output.LayerNorm", "output.LayerNorm"):
+                expected[p + norm + ".weight"] = (d,)
+                expected[p + norm + ".bias"] = (d,)
+        given = {k: v for k, v in weights.items() if k not in _UNUSED_KEYS}
+        missing, extra = sorted(set(expected) - set(given)), sorted(set(given) - set(expected))
+        if missing or extra:
+            raise InvalidInputError(
+                f"BERT weights do not fit the config: missing {missing[:3]}, unexpected {extra[:3]}"
+            )
+        bad = [k for k, shape in expected.items() if given[k].shape != shape]
+        if bad:
+            raise InvalidInputError(
+                f"BERT weight {bad[0]} has shape {given[bad[0]].shape}, expected {expected[bad[0]]}"
+            )
+        self.w = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in given.items()}
+        # Linear layers compute x @ W.T + b: keep W.T contiguous once rather than at every product
+        self.wt = {
+            k: np.ascontiguousarray(v.T) for k, v in self.w.items() if v.ndim == 2 and "embeddings" not in k
+        }
 
-    def forward(self, input_ids: torch.Tensor, attention_mask: torch.Tensor) -> torch.Tensor:
-        """(N, L) int64 ids and (N, L) 0/1 mask -> (N, L, D) float32 last hidden states."""
-        keep = attention_mask.bool()
-        x = self.embeddings(input_ids)
-        for layer in self.encoder.layer:
-            x = layer(x, keep)
-        return x
+    def _linear(self, x: np.ndarray, name: str) -> np.ndarray:
+        # one (N * L, D_in) x (D_in, D_out) product: a 3-D `x @ W` runs one small product per text instead
+        w = self.wt[name + ".weight"]
+        return (x.reshape(-1, x.shape[-1]) @ w + self.w[name + ".bias"]).reshape(*x.shape[:-1], w.shape[1])
+
+    def __call__(self, input_ids: np.ndarray, attention_mask: np.ndarray) -> np.ndarray:
+        """(N, L) int ids and (N, L) 0/1 mask -> (N, L, D) float32 last hidden states."""
+        c, w = self.config, self.w
+        n, length = input_ids.shape
+        eps = c.layer_norm_eps
+        x = (
+            w["embeddings.word_embeddings.weight"][input_ids]
+            + w["embeddings.position_embeddings.weight"][:length][None]
+            + w["embeddings.token_type_embeddings.weight"][0]  # one segment: every token type is 0
+        )
+        x = _layer_norm(x, w["embeddings.LayerNorm.weight"], w["embeddings.LayerNorm.bias"], eps)
+        heads, d = c.num_attention_heads, c.hidden_size
+        dh = d // heads
+        # padded keys get the most negative float32 before the softmax, as transformers' eager attention does
+        key_bias = np.where(np.asarray(attention_mask, dtype=bool), 0.0, np.finfo(np.float32).min)
+        key_bias = key_bias.astype(np.float32)[:, None, None, :]
+        scale = np.float32(1.0 / np.sqrt(dh))
+        for i in range(c.num_hidden_layers):
+            p = f"encoder.layer.{i}."
+
+            def split(t: np.ndarray) -> np.ndarray:  # (N, L, D) -> (N, heads, L, dh)
+                return t.reshape(n, length, heads, dh).transpose(0, 2, 1, 3)
+
+            q = split(self._linear(x, p + "attention.self.query"))
+            k = split(self._linear(x, p + "attention.self.key"))
+            v = split(self._linear(x, p + "attention.self.value"))
+            scores = (q @ k.transpose(0, 1, 3, 2)) * scale + key_bias
+            scores = np.exp(scores - scores.max(axis=-1, keepdims=True))
+            attn = scores / scores.sum(axis=-1, keepdims=True)
+            ctx = (attn @ v).transpose(0, 2, 1, 3).reshape(n, length, d)
+            a = self._linear(ctx, p + "attention.output.dense") + x
+            a = _layer_norm(
+                a, w[p + "attention.output.LayerNorm.weight"], w[p + "attention.output.LayerNorm.bias"], eps
+            )
+            h = _gelu(self._linear(a, p + "intermediate.dense"))
+            x = self._linear(h, p + "output.dense") + a
+            x = _layer_norm(x, w[p + "output.LayerNorm.weight"], w[p + "output.LayerNorm.bias"], eps)
+        return x.astype(np.float32, copy=False)
 
 
-def load_minilm(folder: Path, device: str = "cpu") -> BertModel:
-    """The BERT of a sentence-transformers folder (`model.safetensors`), strict, in eval mode on `device`."""
-    from safetensors.torch import load_file
+def load_minilm(folder: Path) -> NumpyBert:
+    """The BERT of a sentence-transformers folder (`model.safetensors` read as numpy arrays), strict."""
+    from safetensors.numpy import load_file
 
     weights = folder / "model.safetensors"
     if not weights.is_file():
         raise InvalidInputError(f"model folder {str(folder)!r} holds no model.safetensors")
-    state = load_file(str(weights))
-    for key in _UNUSED_KEYS:
-        state.pop(key, None)
-    model = BertModel(read_config(folder))
-    model.load_state_dict(state, strict=True)
-    return model.eval().to(device)
+    return NumpyBert(read_config(folder), load_file(str(weights)))
 
 
 def load_tokenizer(folder: Path, max_length: int) -> Any:

@@ -44,9 +44,10 @@ def _child(cache: Path, out: Path) -> dict:
 
 def test_a_second_process_reads_the_embeddings_without_loading_the_model(tmp_path):
     first = _child(tmp_path / "cache", tmp_path / "first.npy")
-    assert first == {"loaded": True, "torch": True}  # nothing stored yet: the model computed them
+    # nothing stored yet: the model computed them, in numpy (torch is not imported for text at all)
+    assert first == {"loaded": True, "torch": False}
     second = _child(tmp_path / "cache", tmp_path / "second.npy")
-    assert second == {"loaded": False, "torch": False}  # every text stored: no torch, no weights
+    assert second == {"loaded": False, "torch": False}  # every text stored: not even the weights load
     stored, computed = np.load(tmp_path / "second.npy"), np.load(tmp_path / "first.npy")
     np.testing.assert_array_equal(stored, computed)  # float32 rows written and read back exactly
     # ... and they are the model's numbers: computed here without any cache (same batch, same kernels;
@@ -106,3 +107,28 @@ def test_the_store_key_changes_with_the_model_files(tmp_path):
     with pytest.raises(Exception, match="BERT with GELU"):
         (model / "config.json").write_text(json.dumps({"model_type": "gpt2"}))
         MiniLMTextEncoder(model)
+
+
+def test_the_shipped_vocabulary_embeddings_cover_a_default_estimator_and_are_the_models(tmp_path):
+    """`ProMPose.default()` with an empty user cache reads every fixed vocabulary from the file shipped in
+    the package and loads no model (when this fails after a vocabulary changed, run
+    `python -m prompose_grasp.perception.shipped_embeddings`); its rows are the model's numbers."""
+    from prompose_grasp.perception.text import SHIPPED_EMBEDDINGS
+
+    code = (
+        "import sys, json\nfrom prompose_grasp import ProMPose\nfrom prompose_grasp.perception.text import "
+        "default_text_encoder\nProMPose.default()\n"
+        "print(json.dumps({'loaded': default_text_encoder().loaded, 'torch': 'torch' in sys.modules}))"
+    )
+    env = {**os.environ, "PROMPOSE_GRASP_CACHE": str(tmp_path / "empty")}
+    run = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
+                         check=True, timeout=600)  # fmt: skip
+    assert json.loads(run.stdout.strip().splitlines()[-1]) == {"loaded": False, "torch": False}
+    with np.load(SHIPPED_EMBEDDINGS) as z:
+        texts, E, key = z["texts"].tolist(), z["embeddings"], str(z["key"])
+    encoder = MiniLMTextEncoder(persistent=False, cache_size=0)
+    assert key == encoder.content_key
+    sample = np.random.default_rng(0).choice(len(texts), size=48, replace=False)
+    fresh = encoder._encode_batch([texts[i] for i in sample])
+    # computed in other batches than the file's: float32 rounding of the padded batch only (~1e-7)
+    np.testing.assert_allclose(E[sample], fresh, atol=1e-6)
