@@ -8,11 +8,12 @@ rounds repeated), because a shared machine's load drifts by the minute:
 - `floor`: `python -c "import numpy, torch"`, the bare import cost the target is stated against;
 - imports in a fresh interpreter: `prompose_grasp`, `prompose_grasp.geometry`, the estimator module;
 - a cold `prompose-grasp estimate` (a fresh `python -m prompose_grasp.cli estimate` process, what the
-  console script runs) on one rendered 640 x 480 frame, in three cache states: `cached` (vocabularies and
-  this prompt embedded before: the everyday case), `new prompt` (vocabularies cached, the prompt never seen:
-  MiniLM and torch load), `empty cache` (the first call after installing: every vocabulary is embedded and
-  stored; measured `--repeat-empty` times);
-- with `--baseline-src DIR` (a checkout of an older revision), the same cold call of that code;
+  console script runs) on one rendered 640 x 480 frame, in three states of the user cache: `cached` (this
+  prompt embedded before: the everyday case), `new prompt` (what `ProMPose.default()` stores, the prompt
+  never seen: MiniLM loads), `empty cache` (the first call after installing; the fixed vocabularies come
+  with the package; measured `--repeat-empty` times);
+- with `--baseline-src DIR` (a checkout of an older revision), the same cold call of that code (with its
+  own cache filled by one call first, and with an empty one);
 - `estimate --server` (a fresh client process) against a running `prompose-grasp serve`;
 - warm: the in-process `ProMPose.estimate_all` on the frame, and the service round trip of the same frame
   (PNG files and raw arrays) through `PerceptionClient`, medians over `--warm-calls`;
@@ -119,7 +120,7 @@ def _parallel(client: Any, frame: dict[str, Any], n: int, clients: int) -> tuple
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=5, help="rounds of the interleaved cold cases (default 5)")
-    ap.add_argument("--repeat-empty", type=int, default=1, help="cold calls with an empty cache (default 1)")
+    ap.add_argument("--repeat-empty", type=int, default=3, help="cold calls with an empty cache (default 3)")
     ap.add_argument("--warm-calls", type=int, default=10, help="warm in-process / service calls (default 10)")
     ap.add_argument(
         "--parallel-requests", type=int, default=100, help="requests of the load test (default 100)"
@@ -184,6 +185,12 @@ def main(argv: list[str] | None = None) -> int:
             for k in range(args.repeat_empty)
         ]
         samples["cold estimate, empty cache"] = empty
+        if args.baseline_src:
+            samples["baseline: cold estimate, empty cache"] = [
+                _wall(_estimate_cmd(frame, PROMPT), Path(args.baseline_src),
+                      {**base_env, "PROMPOSE_GRASP_CACHE": str(work / f"base-empty{k}")})
+                for k in range(args.repeat_empty)
+            ]  # fmt: skip
 
         warm = _warm(frame, url, warm_cache, args.warm_calls)
         load = _load(url, frame, args.parallel_requests, args.clients)
@@ -251,14 +258,18 @@ def _warm(frame: dict[str, Any], url: str, cache: Path, calls: int) -> dict[str,
     rgbd = load_rgbd(frame["rgb"], frame["depth"], 0.001, tuple(frame["K"]))
     estimator.estimate_all(rgbd, PROMPT)
     client.estimate_files(frame["rgb"], frame["depth"], frame["K"], PROMPT)
-    local, png, raw = [], [], []
+    local, png, raw, overhead = [], [], [], []
     for _ in range(calls):
         t0 = time.perf_counter()
         estimator.estimate_all(load_rgbd(frame["rgb"], frame["depth"], 0.001, tuple(frame["K"])), PROMPT)
         local.append(1e3 * (time.perf_counter() - t0))
         t0 = time.perf_counter()
-        client.estimate_files(frame["rgb"], frame["depth"], frame["K"], PROMPT)
+        doc = client.estimate_files(frame["rgb"], frame["depth"], frame["K"], PROMPT)
         png.append(1e3 * (time.perf_counter() - t0))
+        # what the service adds around the same estimator call: the round trip less the server's own
+        # `timing_ms.total` (PNG decoding, JSON, HTTP, the queue); much less noisy on a loaded machine than
+        # the difference of two estimates
+        overhead.append(png[-1] - doc["timing_ms"]["total"])
         t0 = time.perf_counter()
         client.estimate(frame["rgb_array"], frame["depth_mm"], frame["K"], PROMPT)
         raw.append(1e3 * (time.perf_counter() - t0))
