@@ -11,6 +11,11 @@ The curated public API lives here; subpackages hold the rest:
 - `prompose_grasp.pipeline`: `PickAndPlace(...).run("put the mug in the bin") -> PickOutcome`.
 - `prompose_grasp.robot`: UR models (Pinocchio + MuJoCo from one DH table), FK/IK, trajectories, the
   `Arm` / `Gripper` / `RGBDCamera` interfaces and the shared command validator.
+- `prompose_grasp.service`: the estimator kept loaded behind HTTP (`prompose-grasp serve`) and its client.
+
+Importing the package loads none of them: each name below (and each subpackage) resolves on first access
+(PEP 562, `prompose_grasp._lazy`), so `import prompose_grasp.geometry` costs numpy and scipy, not torch or
+MuJoCo.
 """
 
 from importlib.metadata import version as _version
@@ -89,6 +94,7 @@ __getattr__, __dir__ = attach(
         "perception",
         "pipeline",
         "robot",
+        "service",
     ),
 )
 

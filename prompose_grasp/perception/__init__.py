@@ -10,7 +10,8 @@
 - `prompose_grasp.perception.priors`: text -> canonical unit-box shape prior (`PriorLibrary`,
   `fit_superquadric`, `from_mesh`).
 
-Nothing heavy loads at import: the MiniLM weights load on the first `default_text_encoder()` call.
+Nothing heavy loads at import (the names below resolve on first access); the MiniLM weights load on the
+first text that neither the shipped vocabulary embeddings nor the user cache hold (`perception.text`).
 """
 
 from typing import TYPE_CHECKING
