@@ -289,7 +289,8 @@ def create_app(config: ServiceConfig | None = None, estimator: Any | None = None
                     raise InvalidInputError(
                         f"track_id {tid!r} is not an open track (ended, expired or never started)"
                     )
-                tracker, k, _ = runner.tracks.pop(tid)
+                tracker, k, _ = runner.tracks[tid]  # kept if this frame fails: the next one may go on
+                runner.tracks.move_to_end(tid)
             est = tracker.update(frame)
             runner.tracks[tid] = (tracker, k + 1, time.monotonic())
             return {"track_id": tid, "frame": k, "objects": [est.to_dict()]}
@@ -299,11 +300,15 @@ def create_app(config: ServiceConfig | None = None, estimator: Any | None = None
     @app.delete("/v1/track/{track_id}")
     def end_track(track_id: str) -> dict[str, Any]:
         """End a track; its id is not valid afterwards."""
-        if runner.tracks.pop(track_id, None) is None:
-            raise InvalidInputError(
-                f"track_id {track_id!r} is not an open track (ended, expired or never started)"
-            )
-        return {"track_id": track_id, "ended": True}
+
+        def end() -> dict[str, Any]:
+            if runner.tracks.pop(track_id, None) is None:
+                raise InvalidInputError(
+                    f"track_id {track_id!r} is not an open track (ended, expired or never started)"
+                )
+            return {"track_id": track_id, "ended": True}
+
+        return runner.run(end)  # in turn: a track is never ended while a frame of it is being fitted
 
     return app
 

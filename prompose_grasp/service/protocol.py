@@ -98,10 +98,10 @@ def decode_frame(body: Mapping[str, Any], timestamp_s: float = 0.0) -> Any:
         raise InvalidInputError(f"depth_scale must be a number of metres per unit, got {scale!r}")
     rgb, rgb_name = _image(body.get("rgb"), "rgb", depth=False)
     depth, depth_name = _image(body.get("depth"), "depth", depth=True)
+    fx, fy, cx, cy = (float(v) for v in intrinsics)
     return frame_from_images(
-        rgb, depth, float(scale), tuple(float(v) for v in intrinsics), timestamp_s,
-        rgb_name=rgb_name, depth_name=depth_name,
-    )  # fmt: skip
+        rgb, depth, float(scale), (fx, fy, cx, cy), timestamp_s, rgb_name=rgb_name, depth_name=depth_name
+    )
 
 
 def result_document(prompt: str, estimates: Sequence[Any]) -> dict[str, Any]:
