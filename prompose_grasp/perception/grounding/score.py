@@ -374,7 +374,9 @@ def _base_terms(
         knowledge is not None
         and noun_prior is not None
         and knowledge.weight >= w.knowledge_replaces_family_size
-        and knowledge.similarity > noun_prior.match_score
+        # both are cosines of float32 unit vectors: an exact name in both scores 1 +- ~2e-7, and such a tie
+        # (the library's family is the named thing) keeps the family's size whatever the rounding
+        and knowledge.similarity > noun_prior.match_score + 1e-6
     )
     if noun_prior is not None and parsed.size is None and not knows_size:
         total += w.metric_size * metric_size_term(feats.extents_m, noun_prior.typical_extent_m, w)
