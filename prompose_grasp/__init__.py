@@ -11,10 +11,17 @@ The curated public API lives here; subpackages hold the rest:
 - `prompose_grasp.pipeline`: `PickAndPlace(...).run("put the mug in the bin") -> PickOutcome`.
 - `prompose_grasp.robot`: UR models (Pinocchio + MuJoCo from one DH table), FK/IK, trajectories, the
   `Arm` / `Gripper` / `RGBDCamera` interfaces and the shared command validator.
+- `prompose_grasp.service`: the estimator kept loaded behind HTTP (`prompose-grasp serve`) and its client.
+
+Importing the package loads none of them: each name below (and each subpackage) resolves on first access
+(PEP 562, `prompose_grasp._lazy`), so `import prompose_grasp.geometry` costs numpy and scipy, not torch or
+MuJoCo.
 """
 
 from importlib.metadata import version as _version
+from typing import TYPE_CHECKING
 
+from prompose_grasp._lazy import attach
 from prompose_grasp.errors import (
     AmbiguousObjectError,
     CameraError,
@@ -28,20 +35,67 @@ from prompose_grasp.errors import (
     UnreachableError,
     UnsafeCommandError,
 )
-from prompose_grasp.geometry import Pose9D
-from prompose_grasp.grasp import GraspConfig, ObjectModel, Plane, plan_grasps
-from prompose_grasp.perception import Estimate, ProMPose
-from prompose_grasp.pipeline import PickAndPlace, PickConfig, PickOutcome
-from prompose_grasp.robot import (
-    Arm,
-    CommandValidator,
-    FakeArm,
-    Gripper,
-    IKResult,
-    RGBDCamera,
-    RGBDFrame,
-    RobotModel,
-    load_robot,
+
+if TYPE_CHECKING:  # what the lazy attributes below resolve to, for type checkers and readers
+    from prompose_grasp.geometry import Pose9D
+    from prompose_grasp.grasp import GraspConfig, ObjectModel, Plane, plan_grasps
+    from prompose_grasp.perception import Estimate, ProMPose
+    from prompose_grasp.pipeline import PickAndPlace, PickConfig, PickOutcome
+    from prompose_grasp.robot import (
+        Arm,
+        CommandValidator,
+        FakeArm,
+        Gripper,
+        IKResult,
+        RGBDCamera,
+        RGBDFrame,
+        RobotModel,
+        load_robot,
+    )
+
+__getattr__, __dir__ = attach(
+    __name__,
+    {
+        "prompose_grasp.geometry": ("Pose9D",),
+        "prompose_grasp.grasp": (
+            "GraspConfig",
+            "ObjectModel",
+            "Plane",
+            "plan_grasps",
+        ),
+        "prompose_grasp.perception": (
+            "Estimate",
+            "ProMPose",
+        ),
+        "prompose_grasp.pipeline": (
+            "PickAndPlace",
+            "PickConfig",
+            "PickOutcome",
+        ),
+        "prompose_grasp.robot": (
+            "Arm",
+            "CommandValidator",
+            "FakeArm",
+            "Gripper",
+            "IKResult",
+            "RGBDCamera",
+            "RGBDFrame",
+            "RobotModel",
+            "load_robot",
+        ),
+    },
+    submodules=(
+        "cli",
+        "errors",
+        "eval",
+        "geometry",
+        "grasp",
+        "hardware",
+        "perception",
+        "pipeline",
+        "robot",
+        "service",
+    ),
 )
 
 __version__ = _version("prompose-grasp")

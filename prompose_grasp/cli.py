@@ -46,6 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_bench(sub)
     _add_run(sub)
     _add_bench_pick(sub)
+    _add_serve(sub)
     # `train` parses its own arguments (prompose_grasp.perception.train) so that torch loads only when used.
     sub.add_parser("train", help="train the ProM-Pose network on a synthetic dataset (see: train --help)")
     return parser
@@ -358,6 +359,14 @@ def _add_estimate(sub: argparse._SubParsersAction) -> None:
     _add_frame_args(p)
     p.add_argument("--max-objects", type=int, default=3, help="candidates to report (default 3)")
     p.add_argument("--overlay", default=None, help="also draw the estimated box and mask into this PNG")
+    p.add_argument(
+        "--server",
+        default=None,
+        metavar="URL",
+        help="ask a running `prompose-grasp serve` (e.g. http://127.0.0.1:8765) instead of loading the "
+        "estimator here",
+    )
+    p.add_argument("--token", default=None, help="the server's bearer token (default: $PROMPOSE_GRASP_TOKEN)")
     p.set_defaults(func=_run_estimate)
 
 
@@ -390,6 +399,8 @@ def _run_estimate(args: argparse.Namespace) -> int:
     _check_at_least(args.max_objects, "--max-objects", 1)
     _check_output_file(args.json_out, "--json")
     _check_output_file(args.overlay, "--overlay", _IMAGE_SUFFIXES)
+    if args.server is not None:
+        return _estimate_via_server(args)
     import json
 
     import cv2
@@ -498,6 +509,86 @@ def _run_eval_nocs(args: argparse.Namespace) -> int:
         with open(args.json_out, "w") as f:
             json.dump(table, f, indent=2)
         print(f"wrote {args.json_out}")
+    return 0
+
+
+# ------------------------------------------------------------------------------------------------------------
+# The perception service (`prompose_grasp.service`): `serve`, and `estimate --server URL` as its client.
+
+
+def _add_serve(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "serve",
+        help="keep the estimator loaded and answer estimate / track / health over HTTP (extra `serve`)",
+        description="A local perception service (FastAPI + uvicorn): POST /v1/estimate, POST /v1/track, "
+        "GET /v1/health; the OpenAPI schema at /openapi.json. See docs/service.md.",
+    )
+    p.add_argument(
+        "--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)"
+    )
+    p.add_argument("--port", type=int, default=8765, help="TCP port (default 8765; 0 picks a free one)")
+    p.add_argument(
+        "--token", default=None, help="require this bearer token (default: $PROMPOSE_GRASP_TOKEN when set)"
+    )
+    p.add_argument("--max-body-mb", type=float, default=32.0, help="largest request body [MiB] (default 32)")
+    p.add_argument(
+        "--max-queue", type=int, default=32, help="requests that may wait (default 32); more get 503"
+    )
+    p.add_argument("--device", default="cpu", help="torch device of the estimator (default cpu)")
+    p.set_defaults(func=_run_serve)
+
+
+def _run_serve(args: argparse.Namespace) -> int:
+    from prompose_grasp.service.app import ServiceConfig, serve
+
+    _check_at_least(args.max_queue, "--max-queue", 1)
+    if not args.max_body_mb > 0:
+        raise InvalidInputError(f"--max-body-mb must be > 0, got {args.max_body_mb}")
+    config = ServiceConfig(
+        host=args.host,
+        port=args.port,
+        token=args.token or os.environ.get("PROMPOSE_GRASP_TOKEN") or None,
+        max_body_bytes=int(args.max_body_mb * 2**20),
+        max_queue=args.max_queue,
+        device=args.device,
+    )
+
+    def ready(url: str) -> None:
+        print(f"prompose-grasp serve: listening on {url}", file=sys.stderr, flush=True)
+
+    serve(config, ready=ready)
+    return 0
+
+
+def _estimate_via_server(args: argparse.Namespace) -> int:
+    """`estimate --server URL`: the same checks, JSON and messages, with the estimator in the service."""
+    import json
+
+    from prompose_grasp.perception.grounding.language import check_prompt
+    from prompose_grasp.service.client import PerceptionClient
+
+    if args.overlay:
+        raise InvalidInputError(
+            "--overlay draws the mask, which stays in the server; drop --overlay or --server"
+        )
+    check_prompt(args.prompt, "--prompt")
+    client = PerceptionClient(args.server, token=args.token or os.environ.get("PROMPOSE_GRASP_TOKEN"))
+    doc = client.estimate_files(
+        args.rgb, args.depth, tuple(args.intrinsics), args.prompt, args.depth_scale, args.max_objects
+    )
+    _write_text(args.json_out, json.dumps(doc, indent=2))
+    n, shown = doc["contenders"], len(doc["objects"])
+    if shown and n >= 2:
+        print(
+            f"{n} objects fit {args.prompt!r} about equally (the first {min(n, shown)} in the JSON); name "
+            "the one you mean more narrowly",
+            file=sys.stderr,
+        )
+    elif shown and n == 0:
+        print(
+            f"nothing in the frame clearly fits {args.prompt!r}; the objects listed are guesses",
+            file=sys.stderr,
+        )
     return 0
 
 

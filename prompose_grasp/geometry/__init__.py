@@ -4,17 +4,59 @@ Rigid transforms (`se3`), the 9-DoF box `Pose9D`, oriented-box IoU, camera intri
 (back-projection, farthest point sampling, the paper's robust descriptor) and the Chamfer distance.
 """
 
-from prompose_grasp.geometry.boxes import aligned_box_iou, box_corners, oriented_box_iou
-from prompose_grasp.geometry.camera import CameraIntrinsics
-from prompose_grasp.geometry.chamfer import ChamferResult, chamfer_distance
-from prompose_grasp.geometry.pointcloud import (
-    RobustDescriptor,
-    back_project,
-    depth_to_point_map,
-    farthest_point_sampling,
-    robust_descriptor,
+from typing import TYPE_CHECKING
+
+from prompose_grasp._lazy import attach
+
+if TYPE_CHECKING:  # what the lazy attributes below resolve to, for type checkers and readers
+    from prompose_grasp.geometry.boxes import aligned_box_iou, box_corners, oriented_box_iou
+    from prompose_grasp.geometry.camera import CameraIntrinsics
+    from prompose_grasp.geometry.chamfer import ChamferResult, chamfer_distance
+    from prompose_grasp.geometry.pointcloud import (
+        RobustDescriptor,
+        back_project,
+        depth_to_point_map,
+        farthest_point_sampling,
+        robust_descriptor,
+    )
+    from prompose_grasp.geometry.pose9d import Pose9D, pose_errors
+
+__getattr__, __dir__ = attach(
+    __name__,
+    {
+        "prompose_grasp.geometry.boxes": (
+            "aligned_box_iou",
+            "box_corners",
+            "oriented_box_iou",
+        ),
+        "prompose_grasp.geometry.camera": ("CameraIntrinsics",),
+        "prompose_grasp.geometry.chamfer": (
+            "ChamferResult",
+            "chamfer_distance",
+        ),
+        "prompose_grasp.geometry.pointcloud": (
+            "RobustDescriptor",
+            "back_project",
+            "depth_to_point_map",
+            "farthest_point_sampling",
+            "robust_descriptor",
+        ),
+        "prompose_grasp.geometry.pose9d": (
+            "Pose9D",
+            "pose_errors",
+        ),
+    },
+    submodules=(
+        "boxes",
+        "camera",
+        "chamfer",
+        "occlusion",
+        "pointcloud",
+        "pose9d",
+        "se3",
+        "tolerances",
+    ),
 )
-from prompose_grasp.geometry.pose9d import Pose9D, pose_errors
 
 __all__ = [
     "CameraIntrinsics",

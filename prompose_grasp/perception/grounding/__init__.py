@@ -12,18 +12,73 @@ Two grounders share one call, `.ground(rgb, depth_m, intrinsics, prompt) -> Grou
 docs/grounding.md describes the method, its thresholds and its measured speed and accuracy.
 """
 
-from prompose_grasp.perception.grounding.describe import HEIGHT_BINS, PALETTE, SHAPE_FAMILIES, SIZE_CLASSES
-from prompose_grasp.perception.grounding.dino_sam import GroundingDinoSam2Grounder
-from prompose_grasp.perception.grounding.grounder import Grounder, ground, validate_frame
-from prompose_grasp.perception.grounding.language import ParsedPrompt, parse_prompt
-from prompose_grasp.perception.grounding.score import NounPrior, ScoringWeights
-from prompose_grasp.perception.grounding.types import (
-    Candidate,
-    CandidateAttributes,
-    GroundingConfig,
-    GroundingResult,
-    GroundingTiming,
-    SupportPlane,
+from typing import TYPE_CHECKING
+
+from prompose_grasp._lazy import attach
+
+if TYPE_CHECKING:  # what the lazy attributes below resolve to, for type checkers and readers
+    from prompose_grasp.perception.grounding.describe import (
+        HEIGHT_BINS,
+        PALETTE,
+        SHAPE_FAMILIES,
+        SIZE_CLASSES,
+    )
+    from prompose_grasp.perception.grounding.dino_sam import GroundingDinoSam2Grounder
+    from prompose_grasp.perception.grounding.grounder import Grounder, ground, validate_frame
+    from prompose_grasp.perception.grounding.language import ParsedPrompt, parse_prompt
+    from prompose_grasp.perception.grounding.score import NounPrior, ScoringWeights
+    from prompose_grasp.perception.grounding.types import (
+        Candidate,
+        CandidateAttributes,
+        GroundingConfig,
+        GroundingResult,
+        GroundingTiming,
+        SupportPlane,
+    )
+
+__getattr__, __dir__ = attach(
+    __name__,
+    {
+        "prompose_grasp.perception.grounding.describe": (
+            "HEIGHT_BINS",
+            "PALETTE",
+            "SHAPE_FAMILIES",
+            "SIZE_CLASSES",
+        ),
+        "prompose_grasp.perception.grounding.dino_sam": ("GroundingDinoSam2Grounder",),
+        "prompose_grasp.perception.grounding.grounder": (
+            "Grounder",
+            "ground",
+            "validate_frame",
+        ),
+        "prompose_grasp.perception.grounding.language": (
+            "ParsedPrompt",
+            "parse_prompt",
+        ),
+        "prompose_grasp.perception.grounding.score": (
+            "NounPrior",
+            "ScoringWeights",
+        ),
+        "prompose_grasp.perception.grounding.types": (
+            "Candidate",
+            "CandidateAttributes",
+            "GroundingConfig",
+            "GroundingResult",
+            "GroundingTiming",
+            "SupportPlane",
+        ),
+    },
+    submodules=(
+        "confidence",
+        "describe",
+        "dino_sam",
+        "grounder",
+        "language",
+        "plane",
+        "score",
+        "segment",
+        "types",
+    ),
 )
 
 __all__ = [

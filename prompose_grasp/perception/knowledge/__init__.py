@@ -5,13 +5,33 @@ object (`grounding.score`, "Object knowledge"), so that "the tuna can" is told f
 and "the mustard bottle" from a ketchup bottle by colour.
 """
 
-from prompose_grasp.perception.knowledge.table import (
-    COARSE_SHAPES,
-    TABLE_PATH,
-    KnowledgeMatch,
-    ObjectEntry,
-    ObjectKnowledge,
-    load_table,
+from typing import TYPE_CHECKING
+
+from prompose_grasp._lazy import attach
+
+if TYPE_CHECKING:  # what the lazy attributes below resolve to, for type checkers and readers
+    from prompose_grasp.perception.knowledge.table import (
+        COARSE_SHAPES,
+        TABLE_PATH,
+        KnowledgeMatch,
+        ObjectEntry,
+        ObjectKnowledge,
+        load_table,
+    )
+
+__getattr__, __dir__ = attach(
+    __name__,
+    {
+        "prompose_grasp.perception.knowledge.table": (
+            "COARSE_SHAPES",
+            "TABLE_PATH",
+            "KnowledgeMatch",
+            "ObjectEntry",
+            "ObjectKnowledge",
+            "load_table",
+        ),
+    },
+    submodules=("table",),
 )
 
 __all__ = ["COARSE_SHAPES", "TABLE_PATH", "KnowledgeMatch", "ObjectEntry", "ObjectKnowledge", "load_table"]

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from prompose_grasp._cache import cache_dir
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.perception.grounding.describe import PALETTE as _PALETTE  # the names an entry may list
 
@@ -256,16 +257,6 @@ class ObjectKnowledge:
         with self._lock:
             self._cache[key] = out
         return out
-
-
-def cache_dir() -> Path:
-    """Where embeddings of the table are kept between processes: `$PROMPOSE_GRASP_CACHE`, else
-    `$XDG_CACHE_HOME/prompose_grasp`, else `~/.cache/prompose_grasp`."""
-    env = os.environ.get("PROMPOSE_GRASP_CACHE")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "prompose_grasp"
 
 
 def _cached_embeddings(encoder: Any, texts: list[str]) -> np.ndarray:

@@ -15,18 +15,70 @@ The text encoder phi_T is the frozen `prompose_grasp.perception.text` encoder; t
 features. Training: `prompose_grasp.perception.train`. See docs/network.md.
 """
 
-from prompose_grasp.perception.network.checkpoint import SHIPPED_WEIGHTS, load_estimator, save_checkpoint
-from prompose_grasp.perception.network.config import ABLATIONS, CONFIGS, NetworkConfig, network_config
-from prompose_grasp.perception.network.data import (
-    AugmentConfig,
-    NetworkBatch,
-    ObjectTrack,
-    collate,
-    load_tracks,
-    make_windows,
+from typing import TYPE_CHECKING
+
+from prompose_grasp._lazy import attach
+
+if TYPE_CHECKING:  # what the lazy attributes below resolve to, for type checkers and readers
+    from prompose_grasp.perception.network.checkpoint import SHIPPED_WEIGHTS, load_estimator, save_checkpoint
+    from prompose_grasp.perception.network.config import ABLATIONS, CONFIGS, NetworkConfig, network_config
+    from prompose_grasp.perception.network.data import (
+        AugmentConfig,
+        NetworkBatch,
+        ObjectTrack,
+        collate,
+        load_tracks,
+        make_windows,
+    )
+    from prompose_grasp.perception.network.losses import LossConfig, pose_loss, symmetric_rotation_error
+    from prompose_grasp.perception.network.model import ProMPoseNet
+
+__getattr__, __dir__ = attach(
+    __name__,
+    {
+        "prompose_grasp.perception.network.checkpoint": (
+            "SHIPPED_WEIGHTS",
+            "load_estimator",
+            "save_checkpoint",
+        ),
+        "prompose_grasp.perception.network.config": (
+            "ABLATIONS",
+            "CONFIGS",
+            "NetworkConfig",
+            "network_config",
+        ),
+        "prompose_grasp.perception.network.data": (
+            "AugmentConfig",
+            "NetworkBatch",
+            "ObjectTrack",
+            "collate",
+            "load_tracks",
+            "make_windows",
+        ),
+        "prompose_grasp.perception.network.losses": (
+            "LossConfig",
+            "pose_loss",
+            "symmetric_rotation_error",
+        ),
+        "prompose_grasp.perception.network.model": ("ProMPoseNet",),
+    },
+    submodules=(
+        "checkpoint",
+        "config",
+        "data",
+        "fusion",
+        "geometry",
+        "heads",
+        "layers",
+        "losses",
+        "model",
+        "pose_head",
+        "pose_tokens",
+        "rotations",
+        "temporal",
+        "visual",
+    ),
 )
-from prompose_grasp.perception.network.losses import LossConfig, pose_loss, symmetric_rotation_error
-from prompose_grasp.perception.network.model import ProMPoseNet
 
 __all__ = [
     "ABLATIONS",
