@@ -597,16 +597,7 @@ class URRtdeArm(Arm):
                 return sent
             if k % c.check_every_servo_steps == 0:
                 self._check("follow")
-            t_cycle = self._control.initPeriod()
-            try:
-                ok = self._control.servoJ(q.tolist(), 0.0, 0.0, dt, c.lookahead_s, c.gain)
-            except RuntimeError as exc:
-                self._lost("follow", exc)
-            if not ok:
-                self._explain_refusal("follow")
-                self._send_stop()
-                raise MotionFailedError("follow: the controller refused a servoJ command; stopped")
-            self._control.waitPeriod(t_cycle)
+            self._servo_cycle(q, dt)
         if not self._settle(Q[-1]):
             return sent
         self._motion = None
@@ -636,18 +627,23 @@ class URRtdeArm(Arm):
                 )
             if k % c.check_every_servo_steps == 0:
                 self._check("follow")
-            t_cycle = self._control.initPeriod()
-            try:
-                ok = self._control.servoJ(q_end.tolist(), 0.0, 0.0, dt, c.lookahead_s, c.gain)
-            except RuntimeError as exc:
-                self._lost("follow", exc)
-            if not ok:
-                self._explain_refusal("follow")
-                self._send_stop()
-                raise MotionFailedError("follow: the controller refused a servoJ command; stopped")
-            self._control.waitPeriod(t_cycle)
+            self._servo_cycle(q_end, dt)
             k += 1
         return True
+
+    def _servo_cycle(self, q: np.ndarray, dt: float) -> None:
+        """One servoJ setpoint in its control period; a refused one stops the arm (MotionFailedError)."""
+        c = self.config
+        t_cycle = self._control.initPeriod()
+        try:
+            ok = self._control.servoJ(q.tolist(), 0.0, 0.0, dt, c.lookahead_s, c.gain)
+        except RuntimeError as exc:
+            self._lost("follow", exc)
+        if not ok:
+            self._explain_refusal("follow")
+            self._send_stop()
+            raise MotionFailedError("follow: the controller refused a servoJ command; stopped")
+        self._control.waitPeriod(t_cycle)
 
     def stop(self) -> None:
         """Decelerate to a stop now (stopJ / stopL / servoStop by what is running); callable from another
