@@ -129,6 +129,7 @@ __all__ = [
     "candidate_totals",
     "knowledge_size_term",
     "knowledge_terms",
+    "knows_more_than_family",
     "metric_size_term",
     "score_candidates",
     "score_of_total",
