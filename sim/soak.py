@@ -27,7 +27,15 @@ from typing import Any
 
 import numpy as np
 
-from prompose_grasp.eval.soak import check_output_path, format_soak, run_soak, soak_track, write_json
+from prompose_grasp.eval.soak import (
+    add_measurement_arguments,
+    check_output_path,
+    format_soak,
+    measurement_options,
+    run_soak,
+    soak_track,
+    write_json,
+)
 
 __all__ = ["add_episode_arguments", "add_track_arguments", "render_sweep", "soak_episodes"]
 
@@ -134,7 +142,7 @@ def add_track_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--warmup", type=int, default=500, help="frames left out of the slopes (500)")
     p.add_argument("--sample-every", type=int, default=100, help="frames between memory samples (100)")
     p.add_argument("--window", type=int, default=500, help="frames per time window (500)")
-    _common(p)
+    add_measurement_arguments(p)
 
 
 def add_episode_arguments(p: argparse.ArgumentParser) -> None:
@@ -145,16 +153,7 @@ def add_episode_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed0", type=int, default=0, help="first seed (0)")
     p.add_argument("--warmup", type=int, default=20, help="episodes left out of the slopes (20)")
     p.add_argument("--window", type=int, default=20, help="episodes per time window (20)")
-    _common(p)
-
-
-def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--no-tracemalloc", action="store_true", help="RSS only (tracemalloc slows Python code)")
-    p.add_argument(
-        "--trace-frames", type=int, default=1, help="frames per traced allocation (1; more: a leak hunt)"
-    )
-    p.add_argument("--trim", action="store_true", help="also the RSS after glibc malloc_trim(0)")
-    p.add_argument("--json", dest="json_out", default=None, help="write the report here")
+    add_measurement_arguments(p)
 
 
 def run_from_args(args: argparse.Namespace) -> int:
@@ -178,9 +177,7 @@ def run_from_args(args: argparse.Namespace) -> int:
             warmup=args.warmup,
             sample_every=args.sample_every,
             window=args.window,
-            trace=not args.no_tracemalloc,
-            trace_frames=args.trace_frames,
-            trim=args.trim,
+            **measurement_options(args),
             progress=show,
             on_sample=on_sample,
             meta={
@@ -197,9 +194,7 @@ def run_from_args(args: argparse.Namespace) -> int:
             args.seed0,
             warmup=args.warmup,
             window=args.window,
-            trace=not args.no_tracemalloc,
-            trace_frames=args.trace_frames,
-            trim=args.trim,
+            **measurement_options(args),
             progress=show,
             on_sample=on_sample,
         )

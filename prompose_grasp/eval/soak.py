@@ -52,9 +52,11 @@ from prompose_grasp.errors import InvalidInputError, PromposeError
 
 __all__ = [
     "SlopeFit",
+    "add_measurement_arguments",
     "fit_slope",
     "format_soak",
     "malloc_trim",
+    "measurement_options",
     "memory_verdict",
     "ping_pong",
     "rss_bytes",
@@ -552,6 +554,21 @@ def check_output_path(path: str | Path | None) -> None:
         raise InvalidInputError(f"--json {str(p)!r}: not a file in an existing folder")
 
 
+def add_measurement_arguments(p: argparse.ArgumentParser) -> None:
+    """The options every soak command shares: what is measured (`measurement_options`) and where it goes."""
+    p.add_argument("--no-tracemalloc", action="store_true", help="RSS only (tracemalloc slows Python code)")
+    p.add_argument(
+        "--trace-frames", type=int, default=1, help="frames per traced allocation (1; more: a leak hunt)"
+    )
+    p.add_argument("--trim", action="store_true", help="also the RSS after glibc malloc_trim(0)")
+    p.add_argument("--json", dest="json_out", default=None, help="write the report here")
+
+
+def measurement_options(args: argparse.Namespace) -> dict[str, Any]:
+    """`soak_track` / `run_soak` keywords from the options of `add_measurement_arguments`."""
+    return {"trace": not args.no_tracemalloc, "trace_frames": args.trace_frames, "trim": args.trim}
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m prompose_grasp.eval.soak", description=__doc__.splitlines()[0]
@@ -564,12 +581,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--warmup", type=int, default=500)
     p.add_argument("--sample-every", type=int, default=100)
     p.add_argument("--window", type=int, default=500)
-    p.add_argument("--no-tracemalloc", action="store_true", help="RSS only (tracemalloc slows Python code)")
-    p.add_argument(
-        "--trace-frames", type=int, default=1, help="frames per traced allocation (1; more: leak hunt)"
-    )
-    p.add_argument("--trim", action="store_true", help="also the RSS after glibc malloc_trim(0)")
-    p.add_argument("--json", dest="json_out", default=None)
+    add_measurement_arguments(p)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
@@ -589,9 +601,7 @@ def main(argv: list[str] | None = None) -> int:
             warmup=args.warmup,
             sample_every=args.sample_every,
             window=args.window,
-            trace=not args.no_tracemalloc,
-            trace_frames=args.trace_frames,
-            trim=args.trim,
+            **measurement_options(args),
             progress=lambda line: sys.stderr.write(line + "\n"),
             on_sample=(lambda r: write_json(r, args.json_out)) if args.json_out else None,
             meta={"frames_dir": str(args.frames)},
