@@ -316,7 +316,7 @@ class URRtdeArm(Arm):
         """Resume after a `ConnectionLostError`, or after a safety stop that was cleared on the pendant.
 
         Only links that dropped are reopened: ur_rtde's `reconnect()` on a live control link opens a second
-        RTDE session whose input registers the controller refuses as IN_USE (the first still holds them),
+        RTDE connection whose input registers the controller refuses as IN_USE (the first still holds them),
         and on a live link its background reconnect races ours (seen against the controller emulation: a
         crash of the process). The controller ends the control script on a safety stop (and on a dashboard
         stop), so when it no longer runs it is uploaded again (`reuploadScript`) and waited for; then the
