@@ -3,7 +3,7 @@
 An object seen between two nearer boxes, or half behind a bottle, shows a silhouette whose edge there is the
 occluder's. Its seen extent along that direction is not its size. The pose fit (`perception.fit`) then lets
 the prior's aspect fill the cut side. (The grounder does not use these: not judging a cut footprint's size
-or shape was tried and cost more than it found, docs/grounding.md, session 10.)
+or shape was tried and cost more than it found, docs/grounding.md, "Cups and cameras told from mugs".)
 """
 
 from __future__ import annotations

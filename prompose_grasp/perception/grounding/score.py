@@ -84,7 +84,7 @@ candidate (`RivalReadings`). Only a candidate that another family explains bette
 the library is judged: a user's word the library does not know gives no term. Measured on the grounding
 benchmark's development set (15 scenes of dev split 22): category prompts 94.6 -> 97.8 % top-1 (sacks 40 ->
 85 %: the cartons they lost to are read better as cartons), colour + category prompts and the test split
-unchanged; docs/grounding.md, session 13.
+unchanged; docs/grounding.md, "Rival families".
 
 Object knowledge. The knowledge table (`perception.knowledge`, docs/knowledge.md) knows what a named object
 usually is: "tuna can" 8-9 cm across and 3.3-4.5 cm tall, "mustard bottle" yellow, "banana" long and thin.
