@@ -131,7 +131,7 @@ def _default_value(rtde_type: str) -> tuple:
     return (zero,) * n
 
 
-class _RtdeSession:
+class _RtdeClient:
     def __init__(self, conn: socket.socket, state: dict, deadline: float | None, version: Sequence[int]):
         self.conn = conn
         self.state = state
@@ -242,5 +242,5 @@ def serve_rtde(
         conn, _ = srv.accept()
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         deadline = None if drop_after_s is None else time.monotonic() + drop_after_s
-        session = _RtdeSession(conn, state, deadline, version)
-        threading.Thread(target=session.handle, daemon=True).start()
+        client = _RtdeClient(conn, state, deadline, version)
+        threading.Thread(target=client.handle, daemon=True).start()

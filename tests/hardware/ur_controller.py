@@ -242,18 +242,18 @@ class EmulatedController:
             self.commands, self.wire_commands, self.faults, self.programs = [], [], [], []
 
     # ------------------------------------------------------------------------------------------ RTDE I/O
-    def claim_inputs(self, session: int, names: list[str]) -> list[bool]:
-        """Input recipe set-up: True for each register this session may write (False: IN_USE by another)."""
+    def claim_inputs(self, client: int, names: list[str]) -> list[bool]:
+        """Input recipe set-up: True for each register this client may write (False: IN_USE by another)."""
         with self.lock:
-            free = [self._inputs_owner.get(n, session) == session for n in names]
+            free = [self._inputs_owner.get(n, client) == client for n in names]
             if all(free):
                 for n in names:
-                    self._inputs_owner[n] = session
+                    self._inputs_owner[n] = client
             return free
 
-    def release_inputs(self, session: int) -> None:
+    def release_inputs(self, client: int) -> None:
         with self.lock:
-            self._inputs_owner = {n: s for n, s in self._inputs_owner.items() if s != session}
+            self._inputs_owner = {n: s for n, s in self._inputs_owner.items() if s != client}
 
     def write_inputs(self, names: list[str], values: list) -> None:
         """A data package from a client: applied at the controller's next RTDE exchange."""

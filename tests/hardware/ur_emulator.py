@@ -101,11 +101,11 @@ def _pack(rtde_type: str, value) -> bytes:
     return struct.pack(">" + TYPE_FORMAT[rtde_type], *values)
 
 
-class _RtdeSession:
+class _RtdeClient:
     """One RTDE client connection."""
 
-    def __init__(self, server: _Emulator, conn: socket.socket, sid: int):
-        self.server, self.conn, self.sid = server, conn, sid
+    def __init__(self, server: _Emulator, conn: socket.socket, cid: int):
+        self.server, self.conn, self.cid = server, conn, cid
         self.ctrl = server.ctrl
         self.output_recipe: list[tuple[str, str]] = []
         self.input_recipes: dict[int, list[tuple[str, str]]] = {}
@@ -139,7 +139,7 @@ class _RtdeSession:
             pass
         finally:
             self.started = False
-            self.ctrl.release_inputs(self.sid)
+            self.ctrl.release_inputs(self.cid)
             self.server.close_conn(self.conn)
 
     def _dispatch(self, kind: str, payload: bytes) -> None:
@@ -160,7 +160,7 @@ class _RtdeSession:
         elif kind == "I":
             names = [n for n in payload.decode().split(",") if n]
             types = [INPUT_TYPES.get(n, "NOT_FOUND") for n in names]
-            free = self.ctrl.claim_inputs(self.sid, [n for n, t in zip(names, types) if t != "NOT_FOUND"])
+            free = self.ctrl.claim_inputs(self.cid, [n for n, t in zip(names, types) if t != "NOT_FOUND"])
             it = iter(free)
             types = [t if t == "NOT_FOUND" or next(it) else "IN_USE" for t in types]
             recipe_id = 0
@@ -197,9 +197,9 @@ class _Emulator:
         self.lock = threading.Lock()
         self.listeners: list[socket.socket] = []
         self.conns: set[socket.socket] = set()
-        self.sessions: list[_RtdeSession] = []
+        self.clients: list[_RtdeClient] = []
         self.link_up = False
-        self._sid = 0
+        self._cid = 0
         self.fault: tuple[str, float] | None = None
         self.connections: dict[int, int] = {p: 0 for p in ALL_PORTS}
         self.overruns = 0
@@ -221,21 +221,21 @@ class _Emulator:
             self.link_up = False
             # The controller frees a client's input registers when its connection ends; done here, not
             # when the reader thread notices, so that a client reconnecting at once finds them free.
-            for session in self.sessions:
-                self.ctrl.release_inputs(session.sid)
+            for client in self.clients:
+                self.ctrl.release_inputs(client.cid)
             for s in [*self.listeners, *self.conns]:
                 with suppress(OSError):
                     s.shutdown(socket.SHUT_RDWR)
                 s.close()
-            self.listeners, self.conns, self.sessions = [], set(), []
+            self.listeners, self.conns, self.clients = [], set(), []
 
     def close_conn(self, conn: socket.socket) -> None:
         with self.lock:
             self.conns.discard(conn)
-            for session in self.sessions:
-                if session.conn is conn:
-                    self.ctrl.release_inputs(session.sid)
-            self.sessions = [s for s in self.sessions if s.conn is not conn]
+            for client in self.clients:
+                if client.conn is conn:
+                    self.ctrl.release_inputs(client.cid)
+            self.clients = [s for s in self.clients if s.conn is not conn]
         with suppress(OSError):
             conn.shutdown(socket.SHUT_RDWR)
         conn.close()
@@ -252,10 +252,10 @@ class _Emulator:
                 self.connections[port] += 1
             if port == RTDE_PORT:
                 with self.lock:
-                    self._sid += 1
-                    session = _RtdeSession(self, conn, self._sid)
-                    self.sessions.append(session)
-                target = session.handle
+                    self._cid += 1
+                    client = _RtdeClient(self, conn, self._cid)
+                    self.clients.append(client)
+                target = client.handle
             elif port == DASHBOARD_PORT:
                 target = lambda c=conn: self._dashboard(c)  # noqa: E731
             else:
@@ -367,8 +367,8 @@ class _Emulator:
                 t_exchange = now
                 outputs = self.ctrl.outputs()
                 with self.lock:
-                    sessions = list(self.sessions)
-                for s in sessions:
+                    clients = list(self.clients)
+                for s in clients:
                     s.publish(outputs, now)
 
     def _fire_fault(self) -> None:
