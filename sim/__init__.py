@@ -6,8 +6,9 @@ What is here (docs/sim.md has the details):
 
 - `sim.objects`: a procedural object library (box, carton, can, bottle, bowl, mug, cup, laptop, camera, ball,
   tube, sack, parcel) in canonical frames with exact 9-DoF sizes, and meshes from OBJ/STL files.
-- `sim.world`: `SceneBuilder` (one `mujoco.MjSpec`: floor, table, bin, conveyor, EUR pallet, objects, cameras,
-  lights, mount bodies) and the compiled `SimWorld` (step, reset, settle, render, ground truth).
+- `sim.scene_builder`: `SceneBuilder` (one `mujoco.MjSpec`: floor, table, bin, conveyor, EUR pallet, objects,
+  cameras, lights, mount bodies); `sim.world`: the compiled `SimWorld` (step, reset, settle, render, ground
+  truth); `sim.appearance` (colours, textures, random looks), `sim.placement` (upright, apart).
 - `sim.camera`, `sim.noise`: MuJoCo's exact pinhole intrinsics, OpenCV camera frames, depth-sensor noise
   presets ("clean", "realsense", "kinect").
 - `sim.robot_scene`, `sim.arm`, `sim.grippers`: the UR arm of the robot layer in the scene (`add_robot`),
@@ -25,14 +26,17 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from prompose_grasp.robot.interfaces import RGBDFrame
+from sim.appearance import Appearance
 from sim.arm import SimArm
 from sim.camera import CameraSpec, SimCamera, look_at, mujoco_intrinsics
 from sim.grippers import ParallelJawGripper, SuctionGripper
 from sim.noise import NOISE_PRESETS, DepthNoiseConfig, apply_depth_noise, noise_preset
 from sim.objects import FAMILIES, ObjectAsset, load_mesh_object, make_object
+from sim.placement import upright_pose
 from sim.robot_scene import add_robot
+from sim.scene_builder import SceneBuilder
 from sim.scene_file import build_scene, load_scene, load_world
-from sim.world import Appearance, SceneBuilder, SimWorld, Support, upright_pose
+from sim.world import SimWorld, Support
 
 __all__ = [
     "FAMILIES",

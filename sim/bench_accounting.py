@@ -32,8 +32,10 @@ __all__ = [
     "describe_prompt",
     "fitting_objects",
     "judge",
+    "object_phrase",
     "tally",
     "tally_by_kind",
+    "wilson_interval",
 ]
 
 #: Colour words a prompt or a command may carry (the scenarios' palettes and common others).
@@ -80,10 +82,16 @@ def bare_name(prompt: str) -> str:
     return " ".join(w for w in prompt.split() if w.lower() not in COLOUR_WORDS)
 
 
-def _object_words(command: str) -> list[str]:
-    from sim.pick import _object_phrase
+def object_phrase(command_text: str) -> str:
+    """The command up to its place preposition, lower case ("put the can in the bin" -> "put the can")."""
+    text = " " + command_text.lower().replace(",", " ") + " "
+    for prep in (" on top of ", " onto ", " into ", " inside ", " in ", " on ", " to "):
+        text = text.split(prep)[0]
+    return text.strip()
 
-    return [w for w in _words(_object_phrase(command)) if w not in _STOP_WORDS]
+
+def _object_words(command: str) -> list[str]:
+    return [w for w in _words(object_phrase(command)) if w not in _STOP_WORDS]
 
 
 def fitting_objects(command: str, objects: Sequence[Mapping[str, Any]]) -> list[str]:
@@ -169,9 +177,18 @@ def judge(
     }
 
 
-def _rate(k: int, n: int) -> dict[str, Any]:
-    from sim.bench_pick import wilson_interval
+def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (95 % for the default z); (0, 1) when n = 0."""
+    if n <= 0:
+        return 0.0, 1.0
+    p = successes / n
+    denom = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return max(0.0, centre - half), min(1.0, centre + half)
 
+
+def _rate(k: int, n: int) -> dict[str, Any]:
     lo, hi = wilson_interval(k, n)
     return {"count": k, "rate": (k / n) if n else None, "wilson95": [lo, hi]}
 

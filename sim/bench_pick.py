@@ -54,7 +54,15 @@ import numpy as np
 import yaml
 
 from prompose_grasp.errors import InvalidInputError, ObjectNotFoundError
-from sim.bench_accounting import bare_name, describe_prompt, fitting_objects, judge, tally, tally_by_kind
+from sim.bench_accounting import (
+    bare_name,
+    describe_prompt,
+    fitting_objects,
+    judge,
+    tally,
+    tally_by_kind,
+    wilson_interval,
+)
 
 __all__ = [
     "PROMPT_STYLES",
@@ -66,7 +74,6 @@ __all__ = [
     "real_mesh_scene",
     "run_benchmark",
     "summarise",
-    "wilson_interval",
 ]
 
 log = logging.getLogger(__name__)
@@ -78,17 +85,6 @@ REAL_MESHES_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "obj
 SCENARIOS = ("tabletop_household", "logistics_pallet", "logistics_palletise", "real_meshes", "lookalikes")
 #: What a command says of the object: its scene prompt with the colour ("the red banana") or the bare name.
 PROMPT_STYLES = ("colour+name", "name")
-
-
-def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion (95 % for the default z); (0, 1) when n = 0."""
-    if n <= 0:
-        return 0.0, 1.0
-    p = successes / n
-    denom = 1.0 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return max(0.0, centre - half), min(1.0, centre + half)
 
 
 class OracleMaskEstimator:

@@ -19,8 +19,9 @@ rendered plane at a known pose (error below 1e-6 m).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -31,12 +32,10 @@ from prompose_grasp.geometry.se3 import as_transform, make_T
 from prompose_grasp.robot.interfaces import RGBDCamera, RGBDFrame
 from sim.noise import NOISE_PRESETS, DepthNoiseConfig
 
-if TYPE_CHECKING:
-    from sim.world import SimWorld
-
 __all__ = [
     "T_CAMGL_CAM",
     "CameraSpec",
+    "RendersCameras",
     "SimCamera",
     "look_at",
     "mujoco_intrinsics",
@@ -111,6 +110,18 @@ class CameraSpec:
         return mujoco_intrinsics(self.width, self.height, self.fovy_deg)
 
 
+class RendersCameras(Protocol):
+    """What a `SimCamera` needs of the world it looks at (`sim.world.SimWorld` is one): its cameras by name,
+    their intrinsics, and a render of the current state."""
+
+    @property
+    def cameras(self) -> Mapping[str, CameraSpec]: ...
+
+    def intrinsics(self, camera: str) -> CameraIntrinsics: ...
+
+    def render(self, camera: str, *, rng: np.random.Generator | None = None) -> RGBDFrame: ...
+
+
 class SimCamera(RGBDCamera):
     """A camera of a `SimWorld` as an `RGBDCamera` device: `capture()` renders the current sim state.
 
@@ -122,7 +133,7 @@ class SimCamera(RGBDCamera):
     ...     frame = cam.capture()
     """
 
-    def __init__(self, world: SimWorld, name: str, rng: np.random.Generator | None = None):
+    def __init__(self, world: RendersCameras, name: str, rng: np.random.Generator | None = None):
         if name not in world.cameras:
             raise UnknownNameError("camera", name, sorted(world.cameras))
         spec = world.cameras[name]

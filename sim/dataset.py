@@ -184,10 +184,12 @@ def _camera_path(rng: np.random.Generator, target: np.ndarray, frames: int) -> l
 
 def _build_scene(rng: np.random.Generator, categories: Sequence[str], config: DatasetConfig):
     """Build a settled world and the metadata of its objects."""
+    from sim.appearance import random_appearance
     from sim.camera import CameraSpec
     from sim.noise import noise_preset
     from sim.objects import make_object
-    from sim.world import SceneBuilder, footprint_radius_m, random_appearance, sample_upright_placements
+    from sim.placement import footprint_radius_m, sample_upright_placements
+    from sim.scene_builder import SceneBuilder
 
     b = SceneBuilder("dataset_scene")  # the default sensor look (no MSAA, 1024 px shadows)
     b.add_floor()

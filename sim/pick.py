@@ -31,6 +31,7 @@ from prompose_grasp.grasp import PalletPattern
 from prompose_grasp.pipeline.cell import make_cell
 from prompose_grasp.pipeline.outcome import PickOutcome, ProgressEvent
 from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
+from sim.bench_accounting import object_phrase
 from sim.cell import SimCellConfig, place_targets_of
 from sim.scene_file import build_scene, load_scene
 
@@ -58,7 +59,7 @@ def _target_name(
     else, among the objects whose prompt's noun it names ("the brown carton" -> every carton), the one that
     moved most since the start (the one the loop acted on) when any moved more than 2 cm; else the object
     nearest the first estimate."""
-    head = _object_phrase(command_text)
+    head = object_phrase(command_text)
     named = _named_in(world, head)
     if named:
         return max(named, key=lambda o: len(o.prompt)).name
@@ -78,14 +79,6 @@ def _target_name(
     return pool[int(np.argmin(d))].name
 
 
-def _object_phrase(command_text: str) -> str:
-    """The command up to its place preposition, lower case ("put the can in the bin" -> "put the can")."""
-    text = " " + command_text.lower().replace(",", " ") + " "
-    for prep in (" on top of ", " onto ", " into ", " inside ", " in ", " on ", " to "):
-        text = text.split(prep)[0]
-    return text.strip()
-
-
 def _named_in(world, text: str) -> list:
     text = text.lower()
     return [o for o in world.objects if o.prompt and o.prompt.lower() in text]
@@ -95,7 +88,7 @@ def target_name_for(world, command_text: str) -> str:
     """Evaluation and oracle inputs only (ground truth): the object a command means before anything is
     estimated: the longest scene prompt it contains; else, among objects whose prompt's noun it names ("the
     brown carton" -> cartons), the one on top (highest centre), nearest the arm's base on a tie."""
-    head = _object_phrase(command_text)
+    head = object_phrase(command_text)
     named = _named_in(world, head)
     if named:
         return max(named, key=lambda o: len(o.prompt)).name

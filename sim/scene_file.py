@@ -46,19 +46,14 @@ import numpy as np
 
 from prompose_grasp.errors import InvalidInputError, UnknownNameError
 from prompose_grasp.geometry.se3 import R_from_quat_wxyz, make_T, random_rotation
+from sim.appearance import BUILTIN_TEXTURES, Appearance, random_appearance
 from sim.camera import CameraSpec, look_at
 from sim.noise import NOISE_PRESETS
 from sim.objects import FAMILIES, SYMMETRIES, ObjectAsset, load_mesh_object, make_object
+from sim.placement import sample_upright_placements
 from sim.robot_scene import add_robot
-from sim.world import (
-    BUILTIN_TEXTURES,
-    Appearance,
-    SceneBuilder,
-    SimWorld,
-    Support,
-    random_appearance,
-    sample_upright_placements,
-)
+from sim.scene_builder import SceneBuilder
+from sim.world import SimWorld, Support
 
 __all__ = [
     "GRIPPER_TYPES",
@@ -233,7 +228,7 @@ def _named(value: Any, known: Any, kind: str) -> None:
 
 
 def _check_appearance(a: Any, where: str) -> None:
-    """A support's `appearance`: "random" or the keys of `sim.world.Appearance`."""
+    """A support's `appearance`: "random" or the keys of `sim.appearance.Appearance`."""
     if a == "random":
         return
     keys = tuple(f.name for f in dataclasses.fields(Appearance))

@@ -33,6 +33,9 @@ The results agree with the reference code up to floating-point rounding (numbers
 every threshold unless a value sits on a threshold to within ~1e-7). One documented difference: the rotation
 error clips its cosine to [-1, 1] as SPD does; the original NOCS code does not, so a cosine rounded just past
 -1 (a 180 degree error) becomes NaN there and is counted as a hit.
+
+One module over 600 lines on purpose: it is one protocol, steps 1-5 above, whose thresholds, matching and AP
+are checked against the reference code together; split, a reader would lose the order of the steps.
 """
 
 from __future__ import annotations

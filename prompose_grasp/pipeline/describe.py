@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import re
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 
 from prompose_grasp.perception.grounding.describe import PALETTE, colour_names
 from prompose_grasp.perception.grounding.language import parse_prompt
+from prompose_grasp.pipeline.seams import ObjectEstimate
 
 __all__ = [
     "colour_share",
@@ -128,7 +128,7 @@ def positions(centres_cam: np.ndarray) -> list[str]:
     return words
 
 
-def size_words(est: Any, T_base_cam: np.ndarray) -> str:
+def size_words(est: ObjectEstimate, T_base_cam: np.ndarray) -> str:
     """ "17 cm tall" (the box's extent along base +z) or, for a flat thing, "25 cm across" (its largest
     extent)."""
     R_base = np.asarray(T_base_cam, dtype=np.float64)[:3, :3] @ np.asarray(est.pose.R, dtype=np.float64)
@@ -140,12 +140,12 @@ def size_words(est: Any, T_base_cam: np.ndarray) -> str:
     return f"{100.0 * largest:.0f} cm across"
 
 
-def _colour(est: Any) -> str:
+def _colour(est: ObjectEstimate) -> str:
     attributes = getattr(est, "attributes", None)
     return str(getattr(attributes, "colour_name", "") or "")
 
 
-def phrase(est: Any, noun: str, position: str = "", T_base_cam: np.ndarray | None = None) -> str:
+def phrase(est: ObjectEstimate, noun: str, position: str = "", T_base_cam: np.ndarray | None = None) -> str:
     """ "the red box on the left, 17 cm tall": the colour word when the grounder measured one, the `noun`,
     the `position` word and, with `T_base_cam`, the size."""
     words = " ".join(w for w in ("the", _colour(est), noun, position) if w)
@@ -153,7 +153,7 @@ def phrase(est: Any, noun: str, position: str = "", T_base_cam: np.ndarray | Non
 
 
 def describe_contenders(
-    prompt: str, estimates: Sequence[Any], T_base_cam: np.ndarray, count: int | None = None
+    prompt: str, estimates: Sequence[ObjectEstimate], T_base_cam: np.ndarray, count: int | None = None
 ) -> str:
     """The answer to an ambiguous prompt: how many objects fit it, each described (colour, kind, where it is
     among the others, size), and a narrower phrase to say. `estimates`: the contenders of one frame, best

@@ -3,11 +3,17 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal, get_args
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
 import numpy as np
 
 from prompose_grasp.errors import InvalidInputError
+
+if TYPE_CHECKING:  # types of the fields only: importing them here would load perception and grasp eagerly
+    from prompose_grasp.grasp.place import PlacePose
+    from prompose_grasp.grasp.types import Grasp
+    from prompose_grasp.pipeline.command import Command
+    from prompose_grasp.pipeline.seams import ObjectEstimate
 
 __all__ = [
     "DEVICE_FAULT_REASONS",
@@ -99,8 +105,8 @@ class AttemptRecord:
     """
 
     attempt: int
-    grasp: Any
-    result: str
+    grasp: Grasp
+    result: Reason
     message: str
     gripper_width_m: float = 0.0
 
@@ -125,14 +131,14 @@ class PickOutcome:
             cartons ...": one object after the other until none is left or `PickConfig.max_objects`).
     """
 
-    reason: str
+    reason: Reason
     message: str
-    command: Any = None
-    estimates: tuple[Any, ...] = ()
+    command: Command | None = None
+    estimates: tuple[ObjectEstimate, ...] = ()
     T_base_cams: tuple[np.ndarray, ...] = ()
     attempts: tuple[AttemptRecord, ...] = ()
-    grasp: Any = None
-    place: Any = None
+    grasp: Grasp | None = None
+    place: PlacePose | None = None
     timings_s: dict[str, float] = field(default_factory=dict)
     objects_done: int = 0
 
@@ -147,12 +153,12 @@ class PickOutcome:
         return self.reason == "success"
 
     @property
-    def estimate(self) -> Any:
+    def estimate(self) -> ObjectEstimate | None:
         """The last estimate of the target, or None."""
         return self.estimates[-1] if self.estimates else None
 
     @property
-    def grasps_tried(self) -> tuple[Any, ...]:
+    def grasps_tried(self) -> tuple[Grasp, ...]:
         return tuple(a.grasp for a in self.attempts)
 
     def to_dict(self) -> dict[str, Any]:

@@ -11,16 +11,8 @@ import numpy as np
 import pytest
 
 from prompose_grasp.errors import InvalidInputError
-from prompose_grasp.eval.soak import (
-    fit_slope,
-    format_soak,
-    memory_verdict,
-    ping_pong,
-    rss_bytes,
-    run_soak,
-    time_verdict,
-    write_json,
-)
+from prompose_grasp.eval.soak import format_soak, ping_pong, run_soak, write_json
+from prompose_grasp.eval.trends import fit_slope, memory_verdict, rss_bytes, time_verdict
 
 
 def test_slope_of_an_exact_line_is_exact_with_a_zero_width_interval():

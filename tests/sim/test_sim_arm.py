@@ -14,8 +14,8 @@ from prompose_grasp.robot.fake import HOME_Q
 from sim.arm import SimArm, trapezoid_profile
 from sim.camera import CameraSpec, SimCamera
 from sim.robot_scene import add_robot
+from sim.scene_builder import SceneBuilder
 from sim.scene_file import build_scene, load_scene
-from sim.world import SceneBuilder
 
 pytestmark = pytest.mark.sim
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.bench_pick import wilson_interval
+from sim.bench_accounting import wilson_interval
 
 SCENES = Path(__file__).resolve().parents[2] / "sim" / "scenes"
 

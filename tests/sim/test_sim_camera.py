@@ -7,7 +7,7 @@ import pytest
 
 from prompose_grasp.geometry.se3 import invert_T, make_T, so3_exp, transform_points
 from sim.camera import T_CAMGL_CAM, CameraSpec, look_at, mujoco_intrinsics
-from sim.world import SceneBuilder
+from sim.scene_builder import SceneBuilder
 
 pytestmark = pytest.mark.sim
 

@@ -13,8 +13,9 @@ from prompose_grasp.robot import CommandValidator, ValidatorConfig
 from sim.arm import SimArm
 from sim.grippers import ParallelJawGripper, SuctionGripper
 from sim.objects import make_object
+from sim.placement import upright_pose
 from sim.robot_scene import add_robot
-from sim.world import SceneBuilder, upright_pose
+from sim.scene_builder import SceneBuilder
 
 pytestmark = pytest.mark.sim
 

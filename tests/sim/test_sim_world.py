@@ -12,11 +12,13 @@ from scipy.spatial import Delaunay
 
 from prompose_grasp.errors import InvalidInputError, UnknownNameError
 from prompose_grasp.geometry.boxes import box_corners
+from sim.appearance import random_appearance
 from sim.camera import CameraSpec, look_at
 from sim.noise import NOISE_PRESETS
 from sim.objects import make_object
+from sim.placement import sample_upright_placements
+from sim.scene_builder import EUR_PALLET_SIZE_M, SceneBuilder
 from sim.scene_file import build_scene, load_scene, parse_scene
-from sim.world import EUR_PALLET_SIZE_M, SceneBuilder, random_appearance, sample_upright_placements
 
 pytestmark = pytest.mark.sim
 
