@@ -153,5 +153,6 @@ def fit_pose(
 
 
 def _mode(up: np.ndarray | None, plane: tuple[np.ndarray, float] | None) -> str:
-    """ "upright_plane" with a support plane, "upright" with an up direction only, else "free"."""
+    """The fit's mode: "upright_plane" with a support plane, "upright" with an up direction only, else
+    "free"."""
     return "upright_plane" if plane is not None else ("upright" if up is not None else "free")

@@ -120,10 +120,21 @@ class _Problems:
             shp = self.shapes[k_shape]
             pp, pn = _prior_subset(shp, n_p)
             tree = next((q.obs_tree for (_, m, *_), q in self._built.items() if m == n_o), None)
-            pb = _Problem(o, tree or cKDTree(o), pp, pn, self.up, self.plane, self.basis, np.log(shp.aspect),
-                          cfg, view if with_view or image_only else None,
-                          round_section=self.round_section,
-                          scene_image_only=image_only, aspect_factors=aspect_weight_factors(shp))  # fmt: skip
+            pb = _Problem(
+                obs=o,
+                obs_tree=tree or cKDTree(o),
+                prior_p=pp,
+                prior_n=pn,
+                up=self.up,
+                plane=self.plane,
+                basis=self.basis,
+                log_aspect=np.log(shp.aspect),
+                config=cfg,
+                scene=view if with_view or image_only else None,
+                round_section=self.round_section,
+                scene_image_only=image_only,
+                aspect_factors=aspect_weight_factors(shp),
+            )
             self._built[key] = pb
         return pb
 
