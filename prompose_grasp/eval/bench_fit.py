@@ -52,7 +52,7 @@ from prompose_grasp.geometry.pointcloud import back_project
 from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.perception.dataset import read_split, scene_frames
 from prompose_grasp.perception.estimator import plane_vector
-from prompose_grasp.perception.fit.core import FitConfig, SceneView, fit_pose
+from prompose_grasp.perception.fit import FitConfig, SceneView, fit_pose
 from prompose_grasp.perception.grounding.plane import fit_support_plane
 from prompose_grasp.perception.grounding.types import GroundingConfig, SupportPlane
 

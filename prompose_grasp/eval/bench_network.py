@@ -41,7 +41,7 @@ from prompose_grasp.geometry.pointcloud import back_project
 from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.perception.dataset import read_split, scene_frames
 from prompose_grasp.perception.estimator import plane_vector
-from prompose_grasp.perception.fit.core import fit_pose
+from prompose_grasp.perception.fit import fit_pose
 from prompose_grasp.perception.network.pose_head import MaskedFrame, NetworkPoseHead, PreparedFrame
 
 log = logging.getLogger(__name__)

@@ -28,15 +28,13 @@ from prompose_grasp.perception.fit import (
     protrusion_points,
     seen_surface,
 )
-from prompose_grasp.perception.fit.core import (
+from prompose_grasp.perception.fit.objective import (
     _containment_cost,
     _containment_jacobian,
-    _next_to_occluder,
     _normal_equations,
-    _observable,
-    _Problem,
-    _State,
 )
+from prompose_grasp.perception.fit.observation import _next_to_occluder, _observable
+from prompose_grasp.perception.fit.problem import _Problem, _State
 from prompose_grasp.perception.grounding import Grounder, SupportPlane
 from prompose_grasp.perception.priors import PriorLibrary
 from prompose_grasp.perception.priors.library import (

@@ -39,15 +39,10 @@ from prompose_grasp.perception.grounding.score import (
     metric_size_term,
     score_candidates,
 )
-from prompose_grasp.perception.grounding.segment import (
-    _attach_fragments,
-    _chain_pieces,
-    _join_hinged,
-    _shade_distance,
-    _support_colour,
-    _thin_parts,
-    concave_creases,
-)
+from prompose_grasp.perception.grounding.segment import concave_creases
+from prompose_grasp.perception.grounding.segment.cells import _support_colour, _thin_parts
+from prompose_grasp.perception.grounding.segment.cluster import _attach_fragments, _chain_pieces
+from prompose_grasp.perception.grounding.segment.join import _join_hinged, _shade_distance
 from prompose_grasp.perception.priors import PriorLibrary
 from prompose_grasp.robot import RGBDFrame
 
