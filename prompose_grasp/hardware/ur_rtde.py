@@ -41,7 +41,7 @@ from numpy.typing import ArrayLike
 
 from prompose_grasp._optional import require
 from prompose_grasp.errors import DeviceNotConnectedError, InvalidInputError, UnreachableError
-from prompose_grasp.geometry.se3 import T_from_pose_vector, pose_vector_from_T
+from prompose_grasp.geometry.se3 import T_from_pose_vector, pose_vector_from_T, rotation_angle
 from prompose_grasp.hardware.errors import (
     ConnectionLostError,
     EmergencyStopError,
@@ -195,6 +195,12 @@ class URRtdeConfig:
             joint within this [rad] (moveJ), the TCP within this [m] (moveL). The controller itself
             finishes within ~1e-4 rad / 0.1 mm.
         use_io: also open the IO link (for a suction gripper on the controller's digital outputs).
+        model_tol_m, model_tol_rad: on connect, the controller's TCP pose must agree with the model's forward
+            kinematics at the controller's joints within these, with the TCP just set; a wrong model (a UR5e
+            model on a UR10e) or a TCP the controller did not take would otherwise put every move off. The
+            nominal model and a factory-calibrated arm differ by a few millimetres, well inside 1 cm.
+        tcp_sync_timeout_s: how long connect waits for a state package that carries the new TCP (RTDE
+            publishes on its own cycle, so the first packages after setTcp may still show the old one) [s].
     """
 
     servo_rate_hz: float = 500.0
@@ -210,6 +216,9 @@ class URRtdeConfig:
     reached_tol_rad: float = 1e-3
     reached_tol_m: float = 1e-3
     use_io: bool = False
+    model_tol_m: float = 0.01
+    model_tol_rad: float = 0.02
+    tcp_sync_timeout_s: float = 1.0
 
     def __post_init__(self) -> None:
         if not (0.03 <= self.lookahead_s <= 0.2):
@@ -228,6 +237,9 @@ class URRtdeConfig:
             "start_timeout_s",
             "reached_tol_rad",
             "reached_tol_m",
+            "model_tol_m",
+            "model_tol_rad",
+            "tcp_sync_timeout_s",
         ):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
@@ -298,7 +310,32 @@ class URRtdeArm(Arm):
         if not self._control.setTcp(tcp):
             self.disconnect()
             raise DeviceNotConnectedError(f"the controller at {self.host} refused setTcp({tcp})")
+        self._check_model_agrees()
         logger.info("connected to UR at %s; TCP set to %s", self.host, np.round(tcp, 4).tolist())
+
+    def _check_model_agrees(self) -> None:
+        """Wait until the controller's TCP pose matches the model's FK at its joints (within
+        `URRtdeConfig.model_tol_m` and `model_tol_rad`); disconnect and raise `DeviceNotConnectedError` when
+        it does not within `tcp_sync_timeout_s`."""
+        cfg = self.config
+        deadline = time.monotonic() + cfg.tcp_sync_timeout_s
+        while True:
+            q = np.asarray(self._receive.getActualQ(), dtype=np.float64)
+            T_ctrl = T_from_pose_vector(np.asarray(self._receive.getActualTCPPose(), dtype=np.float64))
+            T_model = self.robot.fk_tcp(q)
+            off_m = float(np.linalg.norm(T_ctrl[:3, 3] - T_model[:3, 3]))
+            off_rad = rotation_angle(T_ctrl[:3, :3], T_model[:3, :3])
+            if off_m <= cfg.model_tol_m and off_rad <= cfg.model_tol_rad:
+                return
+            if time.monotonic() > deadline:
+                self.disconnect()
+                raise DeviceNotConnectedError(
+                    f"the UR controller at {self.host} reports its TCP {1000 * off_m:.0f} mm and "
+                    f"{np.degrees(off_rad):.1f} deg from where the {self.robot.name} model puts it at the "
+                    "same joints, with the TCP just set: check that the model is this arm's (ur3e, ur5e, "
+                    "ur10e, ...) and that no program on the controller changes the TCP"
+                )
+            time.sleep(cfg.poll_period_s)
 
     def disconnect(self) -> None:
         """Stop any motion, end the controller script and close the links. Safe to call twice."""

@@ -46,6 +46,41 @@ def test_connect_opens_receive_then_control_and_sets_the_models_tcp():
     arm.disconnect()
 
 
+def test_connect_waits_for_the_state_that_carries_the_new_tcp():
+    # RTDE publishes on its own cycle: the first packages after setTcp may still carry the flange pose
+    # (the old TCP). connect() returns only once the reported TCP agrees with the model's FK.
+    arm, _, receive, _, _ = make_arm()
+    receive.tcp_pose = pose_vector_from_T(ROBOT.fk(HOME_Q)).tolist()
+    stale_reads = [3]
+
+    real = receive.getActualTCPPose
+
+    def delayed():
+        if stale_reads[0] > 0:
+            stale_reads[0] -= 1
+            return real()
+        receive.tcp_pose = pose_vector_from_T(ROBOT.fk_tcp(HOME_Q)).tolist()
+        return real()
+
+    receive.getActualTCPPose = delayed
+    arm.connect()
+    assert stale_reads[0] == 0
+    np.testing.assert_allclose(arm.tcp_pose(), ROBOT.fk_tcp(HOME_Q), atol=1e-12)
+    arm.disconnect()
+
+
+def test_connect_refuses_a_controller_whose_tcp_the_model_does_not_explain():
+    # A UR10e model on this arm (or a TCP the controller did not take): the reported TCP is metres-scale
+    # away from the model's FK at the same joints, so every planned move would be off by as much.
+    arm, _, receive, log, _ = make_arm(config=URRtdeConfig(poll_period_s=0.001, tcp_sync_timeout_s=0.05))
+    receive.tcp_pose = pose_vector_from_T(
+        load_robot("ur10e", tcp_offset=[0, 0, TCP_Z_M]).fk_tcp(HOME_Q)
+    ).tolist()
+    with pytest.raises(DeviceNotConnectedError, match="from where the ur5e model puts it"):
+        arm.connect()
+    assert not arm.is_connected and log.names()[-2:] == ["stopScript", "disconnect"]
+
+
 def test_move_joints_sends_one_async_moveJ_then_polls_until_done():
     arm, _, _, log, _ = make_arm(moving_polls=3)
     with arm:

@@ -101,6 +101,16 @@ def test_connect_uploads_the_real_control_script_and_sets_the_models_tcp(ctrl):
     assert _ids(snap["commands"])[-1] == CMD_STOP_SCRIPT and snap["program"] is None
 
 
+def test_connect_refuses_a_model_that_is_not_the_controllers_arm(ctrl):
+    # The controller runs a UR5e; a UR10e model puts the TCP ~0.4 m elsewhere at the same joints, so the
+    # adapter disconnects instead of planning with it.
+    wrong = load_robot("ur10e", tcp_offset=[0.0, 0.0, TCP_Z_M])
+    arm = URRtdeArm(ctrl.host, wrong, config=URRtdeConfig(tcp_sync_timeout_s=0.2))
+    with pytest.raises(DeviceNotConnectedError, match="from where the ur10e model puts it"):
+        arm.connect()
+    assert not arm.is_connected and ctrl.snapshot()["program"] is None
+
+
 def test_move_joints_runs_one_async_movej_to_the_target(ctrl, arm):
     q1 = HOME_Q + DQ
     t0 = time.monotonic()
