@@ -1,0 +1,125 @@
+"""rerun recordings (extra `viz`): `--rerun` targets are checked before any work; one seeded sim episode
+recorded to a .rrd file reads back with rerun's own reader, every entity path there with the counts the
+episode implies; a run without a recording never imports rerun."""
+
+from __future__ import annotations
+
+import collections
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from prompose_grasp.errors import InvalidInputError
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+ROOT = Path(__file__).resolve().parents[2]
+SCENE = ROOT / "sim" / "scenes" / "tabletop_household.yaml"
+
+
+def test_rerun_targets_parse_and_bad_ones_are_refused(tmp_path):
+    from prompose_grasp.viz.target import RerunTarget
+
+    assert RerunTarget.parse([str(tmp_path / "new" / "ep.rrd")]) == RerunTarget(
+        "file", str(tmp_path / "new" / "ep.rrd")
+    )  # a folder still to be made is fine: the recorder makes it
+    assert RerunTarget.parse(["spawn"]) == RerunTarget("spawn")
+    assert RerunTarget.parse(["connect"]) == RerunTarget("connect", None)
+    url = "rerun+http://127.0.0.1:9876/proxy"
+    assert RerunTarget.parse(["connect", url]) == RerunTarget("connect", url)
+    for bad, why in [
+        (["ep.txt"], "ends in .rrd"),
+        ([str(tmp_path)], "ends in .rrd"),
+        (["connect", "localhost"], "not a URL"),
+        (["a.rrd", "b.rrd"], "takes"),
+        ([], "takes"),
+    ]:
+        with pytest.raises(InvalidInputError, match=why):
+            RerunTarget.parse(bad)
+
+
+def test_the_command_line_refuses_a_bad_target_before_any_work(tmp_path, capsys):
+    from prompose_grasp.cli import main
+
+    args = ["estimate", "--rgb", "none.png", "--depth", "none.png", "--intrinsics", "1", "1", "1", "1"]
+    assert main([*args, "--prompt", "mug", "--rerun", str(tmp_path / "x.txt")]) == 2
+    assert "ends in .rrd" in capsys.readouterr().err
+
+
+def _read_back(path: Path) -> tuple[collections.Counter, set[str]]:
+    """Rows per entity path and the timelines, read with rerun's own reader."""
+    from rerun.chunk import RrdReader
+
+    rows: collections.Counter = collections.Counter()
+    timelines: set[str] = set()
+    (store,) = RrdReader(path).recordings()
+    for chunk in RrdReader(path).stream(store=store).to_chunks():
+        rows[chunk.entity_path] += chunk.num_rows
+        timelines.update(chunk.timeline_names)
+    return rows, timelines
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_a_recorded_sim_episode_reads_back_with_every_entity(tmp_path):
+    pytest.importorskip("rerun", reason="rerun recordings need the extra viz")
+    from prompose_grasp.viz.rerun_recorder import RerunRecorder
+    from prompose_grasp.viz.target import RerunTarget
+    from sim.pick import run_episode
+
+    path = tmp_path / "episode.rrd"
+    recorder = RerunRecorder.open(RerunTarget("file", str(path)))
+    events: list = []
+    try:
+        result = run_episode(SCENE, "pick up the green bottle", None, seed=0, on_event=events.append,
+                             recorder=recorder)  # fmt: skip
+    finally:
+        recorder.close()
+    outcome = result.outcome
+    assert outcome.reason == "success", outcome.message
+    rows, timelines = _read_back(path)
+    assert "episode" in timelines  # one timeline for the episode
+    cam = "/world/cameras/fixed"
+    for entity in (
+        f"{cam}", f"{cam}/image", f"{cam}/image/rgb", f"{cam}/image/depth",
+        f"{cam}/image/grounding/boxes", f"{cam}/image/grounding/masks", f"{cam}/grounding",
+        f"{cam}/estimates/boxes", f"{cam}/estimates/mesh", f"{cam}/estimates/points",
+        "/world/target/box", "/world/target/mesh", "/world/scene", "/world/grasps/planned",
+        "/grasps/plan", "/world/grasps/chosen", "/world/arm/tcp", "/world/arm/tcp_planned",
+        "/world/arm/tcp_measured", "/arm/joints/planned", "/arm/joints/measured", "/gripper/width_m",
+        "/gripper/force_n", "/events", "/outcome",
+    ):  # fmt: skip
+        assert rows[entity] > 0, f"{entity} missing; recorded: {sorted(rows)}"
+    # each progress event, each attempt and the outcome once; as many images as pinholes (one per frame)
+    assert rows["/events"] == len(events) + 1  # and the outcome's own line
+    assert rows["/outcome"] == 1
+    n = len(outcome.attempts)
+    assert sum(v for k, v in rows.items() if k.startswith("/world/grasps/attempts/")) == n
+    assert rows["/grasps/attempts"] == n
+    assert rows[f"{cam}/image/rgb"] == rows[f"{cam}/image"] == rows[f"{cam}/image/depth"]
+    # the arm: a planned path per command; measured joints and TCP sampled together, more often than
+    # commands were sent (each command ends with a reading, and its duration adds 30 Hz samples)
+    # (the joints' entity also holds one static row: the series' names)
+    assert rows["/arm/joints/measured"] - 1 == rows["/world/arm/tcp"] > rows["/world/arm/tcp_planned"] >= 3
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_a_run_without_a_recording_does_not_import_rerun():
+    # In a fresh interpreter: this test process may already hold rerun from the tests above.
+    code = (
+        "import sys\n"
+        "from sim.pick import run_episode\n"
+        f"result = run_episode({str(SCENE)!r}, 'pick up the green bottle', None, seed=0)\n"
+        "assert result.outcome.reason == 'success', result.outcome.message\n"
+        "print('rerun loaded' if any(m.split('.')[0] == 'rerun' for m in sys.modules) else 'no rerun')\n"
+    )
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, timeout=600
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "no rerun"
