@@ -104,6 +104,17 @@ def test_a_recorded_sim_episode_reads_back_with_every_entity(tmp_path):
     # commands were sent (each command ends with a reading, and its duration adds 30 Hz samples)
     # (the joints' entity also holds one static row: the series' names)
     assert rows["/arm/joints/measured"] - 1 == rows["/world/arm/tcp"] > rows["/world/arm/tcp_planned"] >= 3
+    # the example that draws a recording as a still figure runs on it (docs/recording.md's picture)
+    figure = tmp_path / "episode.jpg"
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / "rerun_episode_figure.py"), str(path), str(figure)],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr[-2000:]
+    import cv2
+
+    image = cv2.imread(str(figure))
+    assert image is not None and image.shape == (990, 1920, 3)  # 2 x 3 panels of 640 x 480, a 30 px banner
 
 
 @pytest.mark.sim
