@@ -10,7 +10,13 @@ recorder.close()
 ```
 """
 
+from typing import TYPE_CHECKING
+
 from prompose_grasp._lazy import attach
+
+if TYPE_CHECKING:  # what the lazy attributes below resolve to
+    from prompose_grasp.viz.rerun_recorder import RerunRecorder
+    from prompose_grasp.viz.target import RerunTarget
 
 __all__ = ["RerunRecorder", "RerunTarget"]
 
