@@ -380,9 +380,8 @@ class RerunRecorder(Recorder):
             f"**{outcome.reason}**: {outcome.message}\n\n{len(outcome.attempts)} attempt(s)\n{attempts}\n\n"
             f"timings: {timings}"
         )
+        # (the loop's own "done" event already went to `events`)
         self._log("outcome", rr.TextDocument(text, media_type="text/markdown"))
-        level = rr.TextLogLevel.INFO if outcome.reason == "success" else rr.TextLogLevel.ERROR
-        self._log("events", rr.TextLog(f"done: {outcome.reason}: {outcome.message}", level=level))
 
     def close(self) -> None:
         """Flush and end the recording (a file gets its footer)."""

@@ -94,7 +94,7 @@ def test_a_recorded_sim_episode_reads_back_with_every_entity(tmp_path):
     ):  # fmt: skip
         assert rows[entity] > 0, f"{entity} missing; recorded: {sorted(rows)}"
     # each progress event, each attempt and the outcome once; as many images as pinholes (one per frame)
-    assert rows["/events"] == len(events) + 1  # and the outcome's own line
+    assert rows["/events"] == len(events)
     assert rows["/outcome"] == 1
     n = len(outcome.attempts)
     assert sum(v for k, v in rows.items() if k.startswith("/world/grasps/attempts/")) == n
