@@ -134,3 +134,51 @@ def test_a_run_without_a_recording_does_not_import_rerun():
     )
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().splitlines()[-1] == "no rerun"
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory):
+    """Two frames of the tabletop's fixed camera (sensor noise differs), as `estimate` / `track` read them."""
+    import cv2
+    import numpy as np
+
+    from prompose_grasp.hardware import write_intrinsics
+    from sim.scene_file import load_world
+
+    seq = tmp_path_factory.mktemp("seq")
+    with load_world(SCENE, seed=0) as world:
+        rng = np.random.default_rng(0)
+        frames = [world.render("front", rng=rng) for _ in range(2)]
+    for k, frame in enumerate(frames):
+        cv2.imwrite(str(seq / f"{k:06d}-color.png"), frame.rgb[..., ::-1])
+        depth_mm = np.clip(np.round(frame.depth_m * 1000.0), 0, 65535).astype(np.uint16)
+        cv2.imwrite(str(seq / f"{k:06d}-depth.png"), depth_mm)
+    write_intrinsics(seq, frames[0].intrinsics, depth_scale_m=0.001)
+    K = frames[0].intrinsics
+    return seq, [str(v) for v in (K.fx, K.fy, K.cx, K.cy)]
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_estimate_and_track_record_their_frames_candidates_and_estimates(sequence, tmp_path, capsys):
+    pytest.importorskip("rerun", reason="rerun recordings need the extra viz")
+    from prompose_grasp.cli import main
+
+    seq, intrinsics = sequence
+    frame_args = ["--intrinsics", *intrinsics, "--prompt", "green bottle"]
+    est = tmp_path / "estimate.rrd"
+    rgb, depth = str(seq / "000000-color.png"), str(seq / "000000-depth.png")
+    assert main(["estimate", "--rgb", rgb, "--depth", depth, *frame_args, "--rerun", str(est)]) == 0
+    rows, timelines = _read_back(est)
+    cam = "/world/cameras/camera"  # a frame handed to the estimator directly, without a camera name
+    assert "episode" in timelines
+    # one frame: its image, one grounding (every candidate in one row of boxes), one set of estimates
+    for entity in ("/image/rgb", "/image/depth", "/image", "/image/grounding/boxes", "/estimates/boxes"):
+        assert rows[cam + entity] == 1, entity
+    track = tmp_path / "track.rrd"
+    assert main(["track", "--sequence", str(seq), *frame_args, "--rerun", str(track)]) == 0
+    rows, _ = _read_back(track)
+    # two frames, each with its estimate (the first grounded; the second a tracked update)
+    assert rows[cam + "/image/rgb"] == 2
+    assert rows[cam + "/estimates/boxes"] >= 2
+    capsys.readouterr()
