@@ -4,7 +4,8 @@ unchanged, and is recorded with what the device measured while it ran.
 An arm command blocks until the motion ends, so the measured joints are sampled from a second thread
 (`sample_hz`) through the `Arm` interface's own reading (`joint_positions`); the TCP pose is the robot
 model's forward kinematics of those joints (the sampler asks the device for nothing but its joint and jaw
-readings, which every backend answers from a state it keeps: RTDE's receive buffer, the MuJoCo state).
+readings, which every backend answers from a state it keeps: RTDE's receive buffer, the MuJoCo state; the
+gripper is read only while an arm command blocks the loop, so no gripper command is on its link then).
 Nothing here runs when the recorder is off: `PickAndPlace` wraps the devices only for a recorder that is
 `enabled`.
 """
