@@ -41,12 +41,24 @@ def test_rerun_targets_parse_and_bad_ones_are_refused(tmp_path):
             RerunTarget.parse(bad)
 
 
-def test_the_command_line_refuses_a_bad_target_before_any_work(tmp_path, capsys):
+def test_the_command_lines_refuse_a_bad_target_before_any_work(tmp_path, capsys, monkeypatch):
     from prompose_grasp.cli import main
+    from sim.__main__ import main as sim_main
 
+    def refuse(*args, **kwargs):
+        raise AssertionError("work started on a bad --rerun target")
+
+    monkeypatch.setattr(subprocess, "call", refuse)  # `demo` runs the simulator as its own process
+    monkeypatch.setattr("sim.pick.run_episode", refuse)
+    bad = str(tmp_path / "x.txt")
     args = ["estimate", "--rgb", "none.png", "--depth", "none.png", "--intrinsics", "1", "1", "1", "1"]
-    assert main([*args, "--prompt", "mug", "--rerun", str(tmp_path / "x.txt")]) == 2
+    assert main([*args, "--prompt", "mug", "--rerun", bad]) == 2
     assert "ends in .rrd" in capsys.readouterr().err
+    assert main(["demo", "--out", str(tmp_path / "out"), "--rerun", bad]) == 2
+    assert "ends in .rrd" in capsys.readouterr().err
+    pick = ["pick", "--scene", str(SCENE), "--command", "pick up the mug", "--out", str(tmp_path)]
+    assert sim_main([*pick, "--rerun", "connect", "localhost"]) == 2
+    assert "not a URL" in capsys.readouterr().err
 
 
 def _read_back(path: Path) -> tuple[collections.Counter, set[str]]:
