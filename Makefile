@@ -13,7 +13,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 TORCH_SPEC ?= torch==2.13.0
 TORCH_INDEX ?=
-EXTRAS ?= test,dev,sim,serve
+EXTRAS ?= test,dev,sim,serve,viz
 export MUJOCO_GL ?= egl
 export HF_HUB_OFFLINE ?= 1
 export TRANSFORMERS_OFFLINE ?= 1
@@ -49,9 +49,11 @@ lint: venv
 
 DEMO_COMMAND ?= pick up the green bottle
 DEMO_OUT ?= demo_out
+# more `prompose-grasp demo` flags, e.g. DEMO_ARGS="--rerun demo_out/episode.rrd" (docs/recording.md)
+DEMO_ARGS ?=
 
 demo: venv
-	$(VENV)/bin/prompose-grasp demo --command "$(DEMO_COMMAND)" --out $(DEMO_OUT) --video
+	$(VENV)/bin/prompose-grasp demo --command "$(DEMO_COMMAND)" --out $(DEMO_OUT) --video $(DEMO_ARGS)
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .import_linter_cache

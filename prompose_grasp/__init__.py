@@ -12,6 +12,8 @@ The curated public API lives here; subpackages hold the rest:
 - `prompose_grasp.robot`: UR models (Pinocchio + MuJoCo from one DH table), FK/IK, trajectories, the
   `Arm` / `Gripper` / `RGBDCamera` interfaces and the shared command validator.
 - `prompose_grasp.service`: the estimator kept loaded behind HTTP (`prompose-grasp serve`) and its client.
+- `prompose_grasp.viz`: rerun recordings of a run (`RerunRecorder`, extra `viz`); `Recorder` is the seam the
+  estimator and the loop record into (a no-op by default).
 
 Importing the package loads none of them: each name below (and each subpackage) resolves on first access
 (PEP 562, `prompose_grasp._lazy`), so `import prompose_grasp.geometry` costs numpy and scipy, not torch or
@@ -41,6 +43,7 @@ if TYPE_CHECKING:  # what the lazy attributes below resolve to, for type checker
     from prompose_grasp.grasp import GraspConfig, ObjectModel, Plane, plan_grasps
     from prompose_grasp.perception import Estimate, ProMPose
     from prompose_grasp.pipeline import PickAndPlace, PickConfig, PickOutcome
+    from prompose_grasp.recorder import Recorder
     from prompose_grasp.robot import (
         Arm,
         CommandValidator,
@@ -72,6 +75,7 @@ __getattr__, __dir__ = attach(
             "PickConfig",
             "PickOutcome",
         ),
+        "prompose_grasp.recorder": ("Recorder",),
         "prompose_grasp.robot": (
             "Arm",
             "CommandValidator",
@@ -95,6 +99,7 @@ __getattr__, __dir__ = attach(
         "pipeline",
         "robot",
         "service",
+        "viz",
     ),
 )
 
@@ -125,6 +130,7 @@ __all__ = [
     "PromposeError",
     "RGBDCamera",
     "RGBDFrame",
+    "Recorder",
     "RobotModel",
     "UnknownNameError",
     "UnreachableError",

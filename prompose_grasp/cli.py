@@ -28,6 +28,8 @@ from prompose_grasp.errors import DeviceFault, InvalidInputError, PromposeError
 
 if TYPE_CHECKING:  # the estimator loads torch: imported where a command needs it, so --help stays fast
     from prompose_grasp.perception.estimator import Estimate
+    from prompose_grasp.viz.rerun_recorder import RerunRecorder
+    from prompose_grasp.viz.target import RerunTarget
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -105,6 +107,41 @@ def _check_at_least(value: int | None, flag: str, minimum: int) -> None:
         raise InvalidInputError(f"{flag} must be >= {minimum}, got {value}")
 
 
+def _add_rerun(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--rerun",
+        nargs="+",
+        default=None,
+        metavar="TARGET",
+        help="record the run for the rerun viewer: FILE.rrd | spawn | connect [URL] (extra viz; "
+        "docs/recording.md)",
+    )
+
+
+def _rerun_target(args: argparse.Namespace) -> RerunTarget | None:
+    """The `--rerun` target, checked before any work (None without the flag)."""
+    if getattr(args, "rerun", None) is None:
+        return None
+    from prompose_grasp.viz.target import RerunTarget
+
+    return RerunTarget.parse(args.rerun)
+
+
+def _open_recorder(target: RerunTarget | None) -> RerunRecorder | None:
+    """A `RerunRecorder` for `target` (imports rerun), or None."""
+    if target is None:
+        return None
+    from prompose_grasp.viz.rerun_recorder import RerunRecorder
+
+    return RerunRecorder.open(target)
+
+
+def _close_recorder(recorder: RerunRecorder | None, target: RerunTarget | None) -> None:
+    if recorder is not None:
+        recorder.close()
+        print(f"rerun recording: {target}", file=sys.stderr)
+
+
 def _check_scene_file(path: str) -> None:
     """The scene file exists and parses as YAML / JSON into a mapping; the simulator checks its keys when it
     loads it (`sim.scene_file.load_scene`), before anything else."""
@@ -180,6 +217,7 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
     p.add_argument("--seed", type=int, default=0, help="scene and sensor-noise seed (default 0)")
     p.add_argument("--video", action="store_true", help="also record episode.mp4 (slower)")
+    _add_rerun(p)
     p.set_defaults(func=_run_demo)
 
 
@@ -193,10 +231,13 @@ def _run_demo(args: argparse.Namespace) -> int:
     _check_scene_file(scene)
     _check_output_folder(args.out, "--out")
     _check_at_least(args.seed, "--seed", 0)
+    _rerun_target(args)
     cmd = [sys.executable, "-m", "sim", "pick", "--scene", scene, "--command", args.text, "--out", args.out,
            "--seed", str(args.seed)]  # fmt: skip
     if args.video:
         cmd.append("--video")
+    if args.rerun is not None:
+        cmd += ["--rerun", *args.rerun]
     return subprocess.call(cmd)
 
 
@@ -234,6 +275,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--dry-run", action="store_true", help="plan and print the moves; send nothing")
     p.add_argument("--json", dest="json_out", default=None, help="also write the outcome and moves here")
+    _add_rerun(p)
     p.set_defaults(func=_run_run)
 
 
@@ -241,6 +283,7 @@ def _run_run(args: argparse.Namespace) -> int:
     _check_output_file(args.json_out, "--json")
     _check_input_file(args.calibration, "--calibration")
     _check_input_file(args.places, "--places")
+    target = _rerun_target(args)
     import json
 
     from prompose_grasp.hardware.run import CellSpec, run_command
@@ -249,7 +292,11 @@ def _run_run(args: argparse.Namespace) -> int:
     spec = CellSpec(
         args.robot, args.host, args.gripper, args.camera, args.calibration, args.dry_run, args.places
     )
-    result = run_command(spec, args.text)
+    recorder = _open_recorder(target)
+    try:
+        result = run_command(spec, args.text, recorder=recorder)
+    finally:
+        _close_recorder(recorder, target)
     outcome = result.outcome
     print("dry run: moves planned, none sent" if result.dry_run else "moves sent")
     for k, line in enumerate(result.moves, 1):
@@ -344,6 +391,7 @@ def _add_frame_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--prompt", required=True, help='the object, e.g. "mustard bottle"')
     p.add_argument("--json", dest="json_out", default=None, help="write the result here (default: stdout)")
+    _add_rerun(p)
 
 
 def _add_estimate(sub: argparse._SubParsersAction) -> None:
@@ -399,7 +447,10 @@ def _run_estimate(args: argparse.Namespace) -> int:
     _check_at_least(args.max_objects, "--max-objects", 1)
     _check_output_file(args.json_out, "--json")
     _check_output_file(args.overlay, "--overlay", _IMAGE_SUFFIXES)
+    target = _rerun_target(args)
     if args.server is not None:
+        if target is not None:
+            raise InvalidInputError("--rerun records the estimator run here; it cannot record --server")
         return _estimate_via_server(args)
     import json
 
@@ -412,8 +463,12 @@ def _run_estimate(args: argparse.Namespace) -> int:
 
     check_prompt(args.prompt, "--prompt")
     frame = load_rgbd(args.rgb, args.depth, args.depth_scale, tuple(args.intrinsics))
-    estimator = ProMPose.default()
-    estimates = estimator.estimate_all(frame, args.prompt, max_objects=args.max_objects)
+    recorder = _open_recorder(target)
+    try:
+        estimator = ProMPose.default(recorder=recorder)
+        estimates = estimator.estimate_all(frame, args.prompt, max_objects=args.max_objects)
+    finally:
+        _close_recorder(recorder, target)
     timing = dict(estimates[0].timings_ms) if estimates else {}
     result = {
         "prompt": args.prompt,
@@ -454,6 +509,7 @@ def _run_estimate(args: argparse.Namespace) -> int:
 
 def _run_track(args: argparse.Namespace) -> int:
     _check_output_file(args.json_out, "--json")
+    target = _rerun_target(args)
     import itertools
     import json
 
@@ -468,7 +524,8 @@ def _run_track(args: argparse.Namespace) -> int:
         return load_rgbd(rgb, depth, args.depth_scale, tuple(args.intrinsics), timestamp_s=float(k))
 
     first = load(*frames[0])  # the intrinsics, the depth scale and the images are checked before any work
-    estimator = ProMPose.default()
+    recorder = _open_recorder(target)
+    estimator = ProMPose.default(recorder=recorder)
     stream = itertools.chain([first], (load(*f) for f in frames[1:]))
     out = sys.stdout if args.json_out is None else open(args.json_out, "w")
     try:
@@ -478,6 +535,7 @@ def _run_track(args: argparse.Namespace) -> int:
     finally:
         if out is not sys.stdout:
             out.close()
+        _close_recorder(recorder, target)
     return 0
 
 

@@ -3,8 +3,9 @@
 Each camera gives a row: colour (with ground-truth boxes and names when --boxes) and colourised depth after
 the camera's noise model.
 
-`python -m sim pick --scene FILE --command "..." --out DIR --seed N [--video]`: one closed-loop language
-pick-and-place episode (`sim.pick`), writing DIR/summary.json, overlay_0.png and optionally episode.mp4.
+`python -m sim pick --scene FILE --command "..." --out DIR --seed N [--video] [--rerun FILE.rrd | spawn |
+connect URL]`: one closed-loop language pick-and-place episode (`sim.pick`), writing DIR/summary.json,
+overlay_0.png and optionally episode.mp4 and a rerun recording (extra `viz`; docs/recording.md).
 
 `python -m sim bench-pick --scenario tabletop_household|logistics_pallet|logistics_palletise|real_meshes|
 lookalikes --episodes N [--oracle-mask] [--real-meshes] [--place] [--prompts colour+name|name] [--json OUT]`:
@@ -63,7 +64,23 @@ def _pick(args: argparse.Namespace) -> int:
     def show(event) -> None:
         print(f"[{100 * event.fraction:3.0f}%] {event.stage:8s} {event.message}", flush=True)
 
-    result = run_episode(args.scene, args.command, args.out, seed=args.seed, video=args.video, on_event=show)
+    recorder = None
+    if args.rerun is not None:
+        from prompose_grasp.viz.target import RerunTarget
+
+        target = RerunTarget.parse(args.rerun)  # checked before the scene loads
+        from prompose_grasp.viz.rerun_recorder import RerunRecorder
+
+        recorder = RerunRecorder.open(target)
+    try:
+        result = run_episode(
+            args.scene, args.command, args.out, seed=args.seed, video=args.video, on_event=show,
+            recorder=recorder,
+        )  # fmt: skip
+    finally:
+        if recorder is not None:
+            recorder.close()
+            print(f"rerun recording: {target}")
     if result.summary["outcome"]["reason"] == "not_understood":
         print(f"command not understood: {result.summary['outcome']['message']}", file=sys.stderr)
         return 2
@@ -96,6 +113,13 @@ def main(argv: list[str] | None = None) -> int:
     pick.add_argument("--out", required=True, help="output folder (summary.json, overlay_0.png, episode.mp4)")
     pick.add_argument("--seed", type=int, default=None, help="scene/noise seed (default: file's)")
     pick.add_argument("--video", action="store_true", help="also write episode.mp4")
+    pick.add_argument(
+        "--rerun",
+        nargs="+",
+        default=None,
+        metavar="TARGET",
+        help="record the episode for the rerun viewer: FILE.rrd | spawn | connect [URL] (extra viz)",
+    )
     from sim.bench_pick import add_arguments
 
     bench = sub.add_parser("bench-pick", help="closed-loop success rate over seeded episodes")

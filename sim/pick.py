@@ -31,6 +31,7 @@ from prompose_grasp.grasp import PalletPattern
 from prompose_grasp.pipeline.cell import make_cell
 from prompose_grasp.pipeline.outcome import PickOutcome, ProgressEvent
 from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
+from prompose_grasp.recorder import Recorder
 from sim.bench_accounting import object_phrase
 from sim.cell import SimCellConfig, place_targets_of
 from sim.scene_file import build_scene, load_scene
@@ -225,6 +226,7 @@ def run_episode(
     estimator_wrapper: Callable[[Any, str], Any] | None = None,
     wrist: bool = True,
     targets: list[str] | None = None,
+    recorder: Recorder | None = None,
 ) -> EpisodeResult:
     """Build the scene, run the library's closed loop on it, then evaluate against ground truth.
 
@@ -243,6 +245,8 @@ def run_episode(
         targets: evaluation only: the scene objects the command means, known by construction (a benchmark's
             plan; two look-alikes the words do not tell apart are both listed). The one that rose most is
             judged. Default: found from the command and the scene prompts (`_target_name`).
+        recorder: records the episode (`prompose_grasp.viz.RerunRecorder`): the loop's stages, the arm and
+            gripper, and (for the default estimator) its grounding and estimates. Not closed here.
 
     The summary's `evaluation` also holds `lifted_objects` (every object that rose >= `MIN_LIFT_M`),
     `placed_objects` for place commands (every object that ended inside the place target and did not start
@@ -257,7 +261,7 @@ def run_episode(
     if out_dir is not None and Path(out_dir).exists() and not Path(out_dir).is_dir():
         raise InvalidInputError(f"out_dir {str(out_dir)!r} exists and is not a folder")
     spec = load_scene(scene)
-    estimator = estimator or ProMPose.default()
+    estimator = estimator or ProMPose.default(recorder=recorder)
     if camera is None:
         fixed = [c["name"] for c in spec.cameras if "pose" in c]
         if not fixed:
@@ -277,7 +281,7 @@ def run_episode(
             SimCellConfig(world, camera, rng, mounted[0] if (wrist and mounted) else None, _patterns(spec))
         )
         arm = cell.arm  # a `SimArm`: its timing and contact forces go into the summary
-        recorder = _Recorder(world, camera) if video else None
+        video_frames = _Recorder(world, camera) if video else None
         start = {o.name: world.T_world_obj(o.name) for o in world.objects}
         t0_sim = float(world.data.time)
         with cell:
@@ -286,12 +290,14 @@ def run_episode(
             loop_estimator = estimator if estimator_wrapper is None else estimator_wrapper(world, camera)
             # the loop observes through `keeper` (the frames it saw are kept for the summary's overlays)
             loop_cell = dataclasses.replace(cell, camera=keeper)
-            pnp = PickAndPlace.for_cell(loop_cell, loop_estimator, config=config, on_event=on_event)
-            if recorder is not None:
-                world.add_step_hook(recorder)
+            pnp = PickAndPlace.for_cell(
+                loop_cell, loop_estimator, config=config, on_event=on_event, recorder=recorder
+            )
+            if video_frames is not None:
+                world.add_step_hook(video_frames)
             outcome = pnp.run(command)
-            if recorder is not None:
-                world.remove_step_hook(recorder)
+            if video_frames is not None:
+                world.remove_step_hook(video_frames)
             # Let the scene come to rest so a lost object has fallen before it is measured.
             world.step(int(0.5 / world.model.opt.timestep))
         # ----- evaluation (ground truth, after the run) -----
@@ -423,7 +429,7 @@ def run_episode(
                 cv2.imwrite(str(out / "overlay_0.png"), drawn[..., ::-1])
                 overlays.append("overlay_0.png")
             summary["overlays"] = overlays
-            if recorder is not None:
-                summary["video"] = "episode.mp4" if recorder.write(out / "episode.mp4") else None
+            if video_frames is not None:
+                summary["video"] = "episode.mp4" if video_frames.write(out / "episode.mp4") else None
             (out / "summary.json").write_text(json.dumps(summary, indent=2))
     return EpisodeResult(outcome, summary, None if out_dir is None else Path(out_dir))

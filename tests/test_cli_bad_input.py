@@ -101,7 +101,7 @@ def test_an_overlay_that_cannot_be_written_is_an_error_not_wrote(frame_files, tm
         def estimate_all(self, frame, prompt, max_objects=None):
             return []
 
-    monkeypatch.setattr(estimator_module.ProMPose, "default", classmethod(lambda cls: NothingFound()))
+    monkeypatch.setattr(estimator_module.ProMPose, "default", classmethod(lambda cls, **kw: NothingFound()))
     monkeypatch.setattr(cv2, "imwrite", lambda path, image: False)  # the disk refuses, after the checks
     overlay = tmp_path / "overlay.png"
     argv = _estimate(frame_files, "--json", str(tmp_path / "out.json"), "--overlay", str(overlay))

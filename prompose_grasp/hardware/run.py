@@ -42,6 +42,7 @@ from prompose_grasp.hardware.ur_rtde import RtdeLinks, URRtdeArm, URRtdeConfig, 
 from prompose_grasp.pipeline.cell import Cell, CellConfig, make_cell, register_cell
 from prompose_grasp.pipeline.outcome import PickOutcome, ProgressEvent
 from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
+from prompose_grasp.recorder import Recorder
 from prompose_grasp.robot.fake import HOME_Q, FakeArm
 from prompose_grasp.robot.interfaces import (
     Arm,
@@ -357,11 +358,13 @@ def run_command(
     robot_model: RobotModel | None = None,
     links: RtdeLinks | None = None,
     robotiq_port: int = ROBOTIQ_PORT,
+    recorder: Recorder | None = None,
 ) -> RunResult:
     """Run `command` on the cell of `spec` (or dry-run it); returns the outcome and the moves in order.
 
     Args:
-        estimator: default `ProMPose.default()`.
+        estimator: default `ProMPose.default()` (recording its grounding and estimates into `recorder`).
+        recorder: records the run (`prompose_grasp.viz.RerunRecorder`); None records nothing.
         config: `PickConfig` (a dry run turns `reobserve` off).
         q_start, robot_model, links, robotiq_port: as `HardwareCellConfig`.
     """
@@ -371,10 +374,11 @@ def run_command(
     config = config or PickConfig()
     if spec.dry_run:
         config = replace(config, reobserve=False)
-    estimator = estimator or ProMPose.default()
+    estimator = estimator or ProMPose.default(recorder=recorder)
     logger.info("%s %r", "dry run of" if spec.dry_run else "running", command)
     arm = cell.arm
     assert isinstance(arm, RecordingArm)
     with cell:
-        outcome = PickAndPlace.for_cell(cell, estimator, config=config, on_event=on_event).run(command)
+        pnp = PickAndPlace.for_cell(cell, estimator, config=config, on_event=on_event, recorder=recorder)
+        outcome = pnp.run(command)
     return RunResult(outcome, tuple(arm.log), tuple(arm.sent), spec.dry_run)

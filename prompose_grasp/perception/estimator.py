@@ -33,6 +33,7 @@ from prompose_grasp.perception.grounding import Candidate, Grounder, GroundingRe
 from prompose_grasp.perception.grounding.language import check_prompt
 from prompose_grasp.perception.grounding.plane import plane_under_object
 from prompose_grasp.perception.priors import PriorLibrary, ShapePrior
+from prompose_grasp.recorder import NULL_RECORDER, Recorder
 from prompose_grasp.robot.interfaces import RGBDFrame
 
 if TYPE_CHECKING:
@@ -149,8 +150,12 @@ class ProMPose:
         fit_config: FitConfig | None = None,
         config: EstimatorConfig | None = None,
         network: NetworkPoseHead | None = None,
+        recorder: Recorder | None = None,
     ):
         self.grounder = grounder
+        #: what each frame's grounding and estimates are recorded into (`prompose_grasp.recorder`; the
+        #: default records nothing)
+        self.recorder = recorder or NULL_RECORDER
         self.priors = priors
         self.fit_config = fit_config or FitConfig()
         self.config = config or EstimatorConfig()
@@ -159,12 +164,16 @@ class ProMPose:
         self._library_priors: dict[str, ShapePrior] = {}
 
     @classmethod
-    def default(cls, device: str = "cpu", network_weights: str | None = None) -> ProMPose:
+    def default(
+        cls, device: str = "cpu", network_weights: str | None = None, recorder: Recorder | None = None
+    ) -> ProMPose:
         """The embedded offline defaults: geometric grounding scored with MiniLM, the parametric prior
         library (shared by grounding and the prior), and the visibility-aware L_geo fit. Loading MiniLM and
         embedding the vocabularies takes a few seconds, once.
 
         `network_weights`: a network checkpoint (e.g. `network.SHIPPED_WEIGHTS`) whose pose starts each fit.
+        `recorder`: records each frame's grounding candidates and estimates (e.g.
+        `prompose_grasp.viz.RerunRecorder`); None records nothing.
         """
         from prompose_grasp.perception.text import default_text_encoder
 
@@ -178,7 +187,7 @@ class ProMPose:
             from prompose_grasp.perception.network.pose_head import NetworkPoseHead
 
             network = NetworkPoseHead.load(network_weights, encoder, device)
-        return cls(grounder, priors, network=network)
+        return cls(grounder, priors, network=network, recorder=recorder)
 
     # ------------------------------------------------------------------------------------------------------
 
@@ -263,6 +272,7 @@ class ProMPose:
         t0 = time.perf_counter()
         grounding = self.grounder.ground(frame.rgb, frame.depth_m, frame.intrinsics, prompt)
         grounding_ms = _ms(t0)
+        self.recorder.grounding(frame, grounding)
         estimates: list[Estimate] = []
         n = max_objects or self.config.max_objects
         if fit_contenders:
@@ -298,6 +308,7 @@ class ProMPose:
             estimates.append(est)
         for est in estimates:
             est.timings_ms["total"] = _ms(t_total)
+        self.recorder.estimates(frame, estimates)
         return estimates
 
     def track(
@@ -335,7 +346,10 @@ class ProMPose:
 
         tracker = Tracker(self, prompt, prior=prior)
         for k, frame in enumerate(frames):
-            yield tracker.update(_check_frame(frame), mask=mask if k == 0 else None)
+            checked = _check_frame(frame)
+            est = tracker.update(checked, mask=mask if k == 0 else None)
+            self.recorder.estimates(checked, [est])
+            yield est
 
     def too_large(self, pose: Pose9D) -> bool:
         """Whether a fitted box has a side longer than `EstimatorConfig.max_object_size_m`."""
@@ -388,6 +402,7 @@ class ProMPose:
                 "covers more than one object (the table, the floor, the whole image)"
             )
         est.timings_ms["total"] = _ms(t_total)
+        self.recorder.estimates(frame, [est])
         return est
 
     def object_points(self, frame: RGBDFrame, mask: np.ndarray) -> np.ndarray:

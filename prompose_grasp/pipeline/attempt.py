@@ -54,6 +54,7 @@ def try_grasps(
             logger.info("grasp %d skipped: its approach or lift line is not continuous in joint space", i)
             continue
         tried += 1
+        loop.recorder.grasp_tried(grasp, i)
         n = len(run.attempts) + 1
         loop.emit(
             "execute", f"grasp {i + 1}/{len(plan)} ({grasp.method}, quality {grasp.quality:.2f})", 0.45, n
@@ -65,17 +66,17 @@ def try_grasps(
             else:
                 width = pick_place(loop, run, obs, grasp, place_target, scene, scene_held, n, cmd)
         except DEVICE_FAULTS as exc:  # the run ends (`PickAndPlace.run`): the attempt says where it struck
-            run.attempts.append(AttemptRecord(n, grasp, fault_reason(exc), str(exc)))
+            _attempted(loop, run, AttemptRecord(n, grasp, fault_reason(exc), str(exc)))
             raise
         except Abort as exc:
-            run.attempts.append(AttemptRecord(n, grasp, exc.reason, exc.message))
+            _attempted(loop, run, AttemptRecord(n, grasp, exc.reason, exc.message))
             if exc.reason in ("timeout", "camera_failed", "wrong_object"):  # not another grasp of it
                 raise
             failures.append(exc)
             if exc.reason == "slipped":  # the object may have moved: re-estimate
                 break
             continue
-        run.attempts.append(AttemptRecord(n, grasp, "success", "held", width))
+        _attempted(loop, run, AttemptRecord(n, grasp, "success", "held", width))
         run.grasp = grasp
         return
     if not failures:
@@ -83,3 +84,9 @@ def try_grasps(
             raise Abort("ik_failed", f"all {len(grasps)} grasps' approach or lift lines flip a wrist")
         raise Abort("no_feasible_grasp", "the plan held no grasp")
     raise failures[-1]
+
+
+def _attempted(loop: Loop, run: RunRecord, record: AttemptRecord) -> None:
+    """Note an attempt in the run's record (and the recorder's)."""
+    run.attempts.append(record)
+    loop.recorder.attempt(record)

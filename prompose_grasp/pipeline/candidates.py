@@ -132,6 +132,7 @@ def observe_candidates(
         cmd.object_prompt,
         "; ".join(f"{score(o):.3f} at {np.round(o.target.pose.t, 3).tolist()}" for o in observations),
     )
+    loop.recorder.candidates(observations)
     chosen = observations[0]
     run.acted_on(chosen.estimate, T_base_cam)
     pose_base = chosen.target.pose

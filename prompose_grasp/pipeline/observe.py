@@ -84,7 +84,9 @@ def capture(loop: Loop, run: RunRecord, camera: RGBDCamera, check: FrameCheck | 
             logger.warning("frame not trusted (%s); capturing again", why)
             continue
         run.last_raw_frame = frame
-        return without_robot(loop, frame)
+        seen = without_robot(loop, frame)
+        loop.recorder.frame(loop.camera_name(camera), seen)
+        return seen
     raise Abort(
         "camera_failed",
         f"{loop.config.camera_retries} captures failed; last: {errors[-1] if errors else '?'}",

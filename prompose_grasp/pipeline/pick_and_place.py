@@ -74,6 +74,7 @@ refused command raises in the arm and leaves it still, and the loop counts it as
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Callable, Mapping
@@ -96,8 +97,10 @@ from prompose_grasp.pipeline.observe import Observation
 from prompose_grasp.pipeline.outcome import PickOutcome, ProgressEvent, Reason
 from prompose_grasp.pipeline.plan import choose_and_plan, plan
 from prompose_grasp.pipeline.record import Abort, RunRecord
+from prompose_grasp.pipeline.recording import ObservedArm, ObservedGripper
 from prompose_grasp.pipeline.seams import Estimator
 from prompose_grasp.pipeline.wrist_look import wrist_look
+from prompose_grasp.recorder import Recorder
 from prompose_grasp.robot.interfaces import Arm, Gripper, RGBDCamera
 from prompose_grasp.robot.model import RobotModel
 from prompose_grasp.robot.validator import CommandValidator, ValidatorConfig
@@ -129,6 +132,10 @@ class PickAndPlace:
         validator: the `CommandValidator` every planned motion is checked against before the first of its
             moves is sent (default: the arm's own `validator` when it has one, else one for `robot_model`), so
             a plan the arm would refuse halfway is dropped before anything moves.
+        recorder: a `prompose_grasp.recorder.Recorder` (e.g. `prompose_grasp.viz.RerunRecorder`) that each
+            run records into, one episode per `run`: frames, candidates, grasps, the arm's commands with
+            its joints measured while they ran, the gripper, the outcome. None: nothing is recorded and no
+            device is wrapped.
 
     `PickAndPlace.for_cell(cell, estimator, ...)` builds the same loop from a `Cell` (`pipeline.make_cell`).
     """
@@ -147,10 +154,11 @@ class PickAndPlace:
         parser: CommandParser | None = None,
         validator: CommandValidator | None = None,
         wrist_camera: RGBDCamera | None = None,
+        recorder: Recorder | None = None,
     ):
         geometry = get_gripper(gripper_kind)
         cell = Cell(arm, gripper, camera, robot_model, geometry, dict(place_targets or {}), wrist_camera)
-        self._connect(cell, estimator, config, on_event, parser, validator)
+        self._connect(cell, estimator, config, on_event, parser, validator, recorder)
 
     @classmethod
     def for_cell(
@@ -161,10 +169,11 @@ class PickAndPlace:
         on_event: Callable[[ProgressEvent], None] | None = None,
         parser: CommandParser | None = None,
         validator: CommandValidator | None = None,
+        recorder: Recorder | None = None,
     ) -> PickAndPlace:
         """The loop on a `Cell` (the arguments as for the constructor)."""
         pnp = cls.__new__(cls)
-        pnp._connect(cell, estimator, config, on_event, parser, validator)
+        pnp._connect(cell, estimator, config, on_event, parser, validator, recorder)
         return pnp
 
     def _connect(
@@ -175,11 +184,18 @@ class PickAndPlace:
         on_event: Callable[[ProgressEvent], None] | None,
         parser: CommandParser | None,
         validator: CommandValidator | None,
+        recorder: Recorder | None = None,
     ) -> None:
         chosen = validator or getattr(cell.arm, "validator", None)
         if not isinstance(chosen, CommandValidator):
             chosen = CommandValidator(ValidatorConfig.for_robot(cell.robot), fk_tcp=cell.robot.fk_tcp)
-        self.loop = Loop(cell, estimator, config or PickConfig(), chosen, on_event)
+        if recorder is not None and recorder.enabled:
+            # The loop commands the devices through recording wrappers (`pipeline.recording`); the cell's
+            # own devices stay as they are for the caller.
+            gripper = ObservedGripper(cell.gripper, recorder)
+            arm = ObservedArm(cell.arm, cell.robot, recorder, gripper=cell.gripper)
+            cell = dataclasses.replace(cell, arm=arm, gripper=gripper)
+        self.loop = Loop(cell, estimator, config or PickConfig(), chosen, on_event, recorder)
         self.parser = parser
 
     # The cell and settings, as the loop sees them.
@@ -236,6 +252,7 @@ class PickAndPlace:
         """Run one command to its end. Returns a `PickOutcome`; expected failures are reasons, not raises."""
         run = RunRecord()
         cmd: Command | None = None
+        self.loop.recorder.begin_episode(command.text if isinstance(command, Command) else str(command))
         try:
             cmd = self._parse(command)
             fixture = self._fixture(cmd)
@@ -266,7 +283,7 @@ class PickAndPlace:
         run.timings_s["total"] = time.perf_counter() - run.t_start
         self.loop.emit("done", f"{reason}: {message}", 1.0, len(run.attempts))
         logger.info("pick run ended: %s (%s)", reason, message)
-        return PickOutcome(
+        outcome = PickOutcome(
             reason=reason,
             message=message,
             command=cmd,
@@ -278,6 +295,9 @@ class PickAndPlace:
             timings_s=dict(run.timings_s),
             objects_done=int(run.objects_done),
         )
+        self.loop.recorder.outcome(outcome)
+        self.loop.recorder.end_episode()
+        return outcome
 
     # --------------------------------------------------------------------------------------------- stages
     def _parse(self, command: str | Command) -> Command:

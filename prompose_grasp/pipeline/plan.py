@@ -58,6 +58,7 @@ def plan(loop: Loop, run: RunRecord, obs: Observation, q_now: np.ndarray) -> tup
                 "ik_failed" if reach * 2 >= max(1, sum(exc.rejected.values())) else "no_feasible_grasp"
             )
             raise Abort(reason, str(exc)) from None
+    loop.recorder.grasps(grasps)
     return grasps, scene
 
 

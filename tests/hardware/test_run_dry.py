@@ -96,6 +96,29 @@ def test_dry_run_completes_a_planned_pick_and_sends_nothing(
 
 @pytest.mark.sim
 @pytest.mark.slow
+def test_dry_run_with_rerun_records_the_planned_moves(recording, estimator, tmp_path, monkeypatch):
+    pytest.importorskip("rerun", reason="rerun recordings need the extra viz")
+    from rerun.chunk import RrdReader
+
+    seq, calibration, _ = recording
+    monkeypatch.setattr("prompose_grasp.perception.estimator.ProMPose.default", lambda *a, **k: estimator)
+    rrd = tmp_path / "dry.rrd"
+    argv = ["run", "--robot", "ur5e", "--gripper", "robotiq", "--camera", str(seq),
+            "--command", "pick up the green bottle", "--calibration", str(calibration),
+            "--dry-run", "--rerun", str(rrd)]  # fmt: skip
+    assert main(argv) == 0
+    rows: dict[str, int] = {}
+    for chunk in RrdReader(rrd).stream().to_chunks():
+        rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+    # the pick's three arm moves (moveJ to the pre-grasp, moveL approach, moveL lift), each with its planned
+    # TCP path; the camera frame the loop saw; the one attempt; the outcome
+    assert rows["/world/arm/tcp_planned"] == 3
+    assert rows["/world/cameras/fixed/image/rgb"] >= 1 and rows["/world/grasps/attempts/1"] == 1
+    assert rows["/outcome"] == 1
+
+
+@pytest.mark.sim
+@pytest.mark.slow
 def test_real_path_sends_the_validated_moves_to_the_control_link(recording, estimator):
     """Without --dry-run: the same pick through URRtdeArm (control link replaced at our boundary, see
     rtde_fakes) and RobotiqGripper (on the loopback URCap server): what goes on the wire is exactly the

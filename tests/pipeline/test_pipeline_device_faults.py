@@ -201,7 +201,7 @@ def test_the_cli_exit_status_says_device_fault_not_bad_input(tmp_path, monkeypat
     from prompose_grasp.hardware import run as hardware_run
     from prompose_grasp.pipeline.outcome import PickOutcome
 
-    def fake_run_command(spec, text):
+    def fake_run_command(spec, text, recorder=None):
         if isinstance(result, Exception):
             raise result
         return hardware_run.RunResult(PickOutcome(result, "as injected"), (), (), False)
