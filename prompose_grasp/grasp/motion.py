@@ -327,7 +327,7 @@ def timed_trajectory(robot: RobotModel, W: np.ndarray, cfg: MotionConfig) -> Joi
 
 
 #: How far a surface place target's body reaches beyond its usable surface [m]: a conveyor's frame and side
-#: guides stand up to 2 cm outside its belt (sim/scene_builder.py `add_conveyor`); a little more for a real one.
+#: guides stand up to 2 cm outside its belt (`SceneBuilder.add_conveyor`); a little more for a real one.
 PLACE_RIM_M = 0.04
 #: How deep below its surface a surface place target's body is taken to be [m] (a conveyor's frame and
 #: legs, a table's top and legs: solid enough that nothing carried passes under the surface nearby).
