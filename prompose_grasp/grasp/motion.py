@@ -28,13 +28,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from prompose_grasp.errors import InvalidInputError, NoFeasibleMotion
+from prompose_grasp.geometry.distance import segment_box_distance
 from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.geometry.se3 import invert_T
 from prompose_grasp.grasp.batch_ik import ik_nearest_batch, link_frames_batch
-from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry
+from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry, as_gripper
 from prompose_grasp.grasp.place import PlacePose, PlaceTarget
-from prompose_grasp.grasp.planner import _gripper
-from prompose_grasp.grasp.scene import CollisionScene, Hit, _segment_box_distance
+from prompose_grasp.grasp.scene import CollisionScene, Hit
 from prompose_grasp.grasp.types import Grasp, ObjectModel
 from prompose_grasp.robot.interfaces import JointTrajectory
 from prompose_grasp.robot.model import RobotModel
@@ -245,7 +245,7 @@ def _held_arm_hits(
     T_obj = frames[:, 7] @ np.asarray(T_flange_obj, dtype=np.float64)  # (N, 4, 4)
     half = np.maximum(held.pose.size / 2.0 - cfg.contact_margin_m, 1e-4)
     C = len(names)
-    d = _segment_box_distance(
+    d = segment_box_distance(
         p0.reshape(-1, 3),
         p1.reshape(-1, 3),
         np.repeat(T_obj[:, :3, 3], C, axis=0),
@@ -387,7 +387,7 @@ def plan_pick_place(
         NoFeasibleMotion: a segment has no IK along its line or collides (its name and what it hit).
     """
     cfg = config or MotionConfig()
-    grip = _gripper(gripper)
+    grip = as_gripper(gripper)
     if grasp.q is None:
         raise InvalidInputError("grasp.q is None: plan the grasp with plan_grasps (it sets q)")
     T_tcp_flange = invert_T(grip.T_flange_tcp)
@@ -417,7 +417,7 @@ def plan_pick_place(
     W_back = _line(robot, grasp.T_base_tcp, grasp.T_base_pregrasp, grasp.q, T_tcp_flange, cfg.line_step_m)
     W_approach = None if W_back is None else W_back[::-1]
     if q_start is not None and W_approach is not None:
-        q0 = robot._q(q_start, "q_start")
+        q0 = robot.check_q(q_start, "q_start")
         W_to = free_move(
             robot, scene_pick, q0, W_approach[0], grip, opening, None, T_tcp_obj, cfg, T_tcp_flange, False
         )

@@ -31,9 +31,9 @@ from numpy.typing import ArrayLike
 
 from prompose_grasp.errors import InvalidInputError, NoFeasiblePlace
 from prompose_grasp.geometry.se3 import as_transform, invert_T, make_T
-from prompose_grasp.grasp.batch_ik import ik_nearest_batch
-from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry
-from prompose_grasp.grasp.planner import _branch_order, _gripper, _verified, gripper_hulls
+from prompose_grasp.grasp.batch_ik import branch_order, fk_reaches, ik_nearest_batch
+from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry, as_gripper
+from prompose_grasp.grasp.planner import gripper_hulls
 from prompose_grasp.grasp.scene import CollisionScene
 from prompose_grasp.grasp.types import Grasp, ObjectModel
 from prompose_grasp.robot.model import RobotModel
@@ -266,8 +266,12 @@ def plan_place(
             the exception's `__cause__`).
     """
     cfg = config or PlaceConfig()
-    grip = _gripper(gripper)
-    seed = (grasp.q if grasp.q is not None else np.zeros(6)) if q_seed is None else robot._q(q_seed, "q_seed")
+    grip = as_gripper(gripper)
+    seed = (
+        (grasp.q if grasp.q is not None else np.zeros(6))
+        if q_seed is None
+        else robot.check_q(q_seed, "q_seed")
+    )
     if scene is None:
         scene = CollisionScene(obstacles, None, points_base, None)
     T_surf = target.T_base_surface
@@ -345,8 +349,8 @@ def plan_place(
         # Every in-limit branch, nearest the seed first, until one has a free arm and reaches the approach
         # and retreat poses on the same branch.
         why, q_ok = "arm_collision", None
-        for qb in _branch_order(q[0], branches[0]):
-            if not _verified(robot, qb, Ts[0]):
+        for qb in branch_order(q[0], branches[0]):
+            if not fk_reaches(robot.fk(qb), Ts[0]):
                 continue
             q_near, ok_near, _ = ik_nearest_batch(robot.spec, Ts[1:], np.vstack([qb, qb]), lower, upper)
             if not np.all(ok_near) or np.max(np.linalg.norm(q_near - qb, axis=1)) > 1.0:

@@ -8,7 +8,7 @@ import pytest
 from prompose_grasp.errors import InvalidInputError, NoFeasibleGrasp
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.grasp import GraspConfig, ObjectModel, ParallelJawGeometry, Plane, plan_grasps
-from prompose_grasp.grasp.planner import generate_candidates
+from prompose_grasp.grasp.synthesis import generate_candidates
 from prompose_grasp.grasp.surface import needs_sections, section_grasps
 from prompose_grasp.robot import HOME_Q, load_robot
 
