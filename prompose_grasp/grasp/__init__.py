@@ -25,6 +25,7 @@ if TYPE_CHECKING:  # what the lazy attributes below resolve to, for type checker
         get_gripper,
     )
     from prompose_grasp.grasp.motion import (
+        GripperAction,
         MotionConfig,
         MotionSegment,
         PickPlaceMotion,
@@ -68,6 +69,7 @@ __getattr__, __dir__ = attach(
             "get_gripper",
         ),
         "prompose_grasp.grasp.motion": (
+            "GripperAction",
             "MotionConfig",
             "MotionSegment",
             "PickPlaceMotion",
@@ -134,6 +136,7 @@ __all__ = [
     "Grasp",
     "GraspConfig",
     "GraspPlan",
+    "GripperAction",
     "GripperPart",
     "Hit",
     "MotionConfig",
