@@ -41,6 +41,7 @@ from prompose_grasp.robot.model import RobotModel
 log = logging.getLogger(__name__)
 
 __all__ = [
+    "PLACE_KINDS",
     "PalletPattern",
     "PalletSlot",
     "PlaceConfig",
@@ -52,7 +53,8 @@ __all__ = [
     "plan_place",
 ]
 
-_KINDS = ("surface", "bin", "pallet")
+#: The kinds of place target.
+PLACE_KINDS = ("surface", "bin", "pallet")
 
 
 @dataclass(frozen=True)
@@ -95,8 +97,10 @@ class PlaceTarget:
     pattern: PalletPattern | None = None
 
     def __post_init__(self) -> None:
-        if self.kind not in _KINDS:
-            raise InvalidInputError(f"PlaceTarget.kind must be one of {', '.join(_KINDS)}, got {self.kind!r}")
+        if self.kind not in PLACE_KINDS:
+            raise InvalidInputError(
+                f"PlaceTarget.kind must be one of {', '.join(PLACE_KINDS)}, got {self.kind!r}"
+            )
         object.__setattr__(self, "T_base_surface", as_transform(self.T_base_surface, "T_base_surface"))
         half = np.asarray(self.half_extents_xy_m, dtype=np.float64)
         if half.shape != (2,) or not np.all(np.isfinite(half)) or np.any(half <= 0):
