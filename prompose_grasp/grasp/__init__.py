@@ -44,10 +44,11 @@ if TYPE_CHECKING:  # what the lazy attributes below resolve to, for type checker
         plan_place,
     )
     from prompose_grasp.grasp.planner import build_scene, gripper_hulls, plan_grasps
-    from prompose_grasp.grasp.scene import CollisionScene, Hit, voxelize_points
+    from prompose_grasp.grasp.scene import CollisionScene, Hit
     from prompose_grasp.grasp.suction import suction_grasps
     from prompose_grasp.grasp.synthesis import generate_candidates
     from prompose_grasp.grasp.types import Grasp, GraspConfig, GraspPlan, ObjectModel, Plane
+    from prompose_grasp.grasp.voxels import voxelize_points
 
 __getattr__, __dir__ = attach(
     __name__,
@@ -98,10 +99,10 @@ __getattr__, __dir__ = attach(
         "prompose_grasp.grasp.scene": (
             "CollisionScene",
             "Hit",
-            "voxelize_points",
         ),
         "prompose_grasp.grasp.suction": ("suction_grasps",),
         "prompose_grasp.grasp.synthesis": ("generate_candidates",),
+        "prompose_grasp.grasp.voxels": ("voxelize_points",),
         "prompose_grasp.grasp.types": (
             "Grasp",
             "GraspConfig",
@@ -125,6 +126,7 @@ __getattr__, __dir__ = attach(
         "surface",
         "synthesis",
         "types",
+        "voxels",
     ),
 )
 

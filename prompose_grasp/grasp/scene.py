@@ -36,26 +36,12 @@ from prompose_grasp.geometry.distance import rotation_z_along, segment_distance
 from prompose_grasp.grasp.batch_ik import link_frames_batch
 from prompose_grasp.grasp.broadphase import VOXELS, ItemBounds, first_hits, object_bounds
 from prompose_grasp.grasp.types import ObjectModel, Plane
+from prompose_grasp.grasp.voxels import voxel_blocks, voxelize_points
 from prompose_grasp.robot.urdf import BASE_LINKS
 
-__all__ = ["CollisionScene", "Hit", "voxelize_points"]
+__all__ = ["CollisionScene", "Hit"]
 
 log = logging.getLogger(__name__)
-
-#: Edge of the blocks the voxel meshes are split into [m] (about a gripper box: tight block bounds let the
-#: broadphase skip most blocks, and few voxels per block reach the exact per-voxel test).
-_VOXEL_BLOCK_M = 0.10
-# Unit cube corners and triangles (outward winding) for voxel meshes.
-_CUBE_V = np.array(
-    [[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)], dtype=np.float64
-)
-_CUBE_F = np.array(
-    [
-        [0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
-        [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3],
-    ],
-    dtype=np.int64,
-)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -86,12 +72,6 @@ def _bvh(vertices: np.ndarray, faces: np.ndarray) -> fcl.BVHModel:
     )
     model.endModel()
     return model
-
-
-def voxelize_points(points: np.ndarray, voxel_size_m: float) -> np.ndarray:
-    """(M, 3) centres [m] of the occupied voxels of the grid of edge `voxel_size_m` aligned with the axes."""
-    keys = np.unique(np.floor(points / voxel_size_m).astype(np.int64), axis=0)
-    return (keys + 0.5) * voxel_size_m
 
 
 def _object_geometry(obj: ObjectModel) -> tuple[fcl.CollisionGeometry, fcl.Transform]:
@@ -182,14 +162,8 @@ class CollisionScene:
                 P = P[~inside]
             if len(P):
                 self.voxel_centres = P
-                # One mesh per 25 cm block of voxels: tight bounding boxes let the broadphase skip the blocks
-                # a query is far from (one mesh for all would overlap every query's bounding box).
-                blocks = np.floor(self.voxel_centres / _VOXEL_BLOCK_M).astype(np.int64)
-                _, block_of = np.unique(blocks, axis=0, return_inverse=True)
-                for b in range(int(block_of.max()) + 1):
-                    C = self.voxel_centres[block_of.ravel() == b]
-                    V = (C[:, None, :] + self.voxel_size_m * _CUBE_V[None]).reshape(-1, 3)
-                    F = (np.arange(len(C))[:, None, None] * 8 + _CUBE_F[None]).reshape(-1, 3)
+                # One mesh per block of voxels (`voxel_blocks`), each an item of the broadphase.
+                for C, V, F in voxel_blocks(self.voxel_centres, self.voxel_size_m):
                     objects.append(
                         self._register(_bvh(V, F), fcl.Transform(), Hit("points", "observed points"))
                     )
