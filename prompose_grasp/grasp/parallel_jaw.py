@@ -16,8 +16,8 @@ contacts in the middle band, closing line horizontal). The approach is perpendic
 one nearest top-down, rotated about the closing line by `antipodal_approaches_deg`. Quality: 0.35 friction
 margin, 0.3 top-down, 0.25 centring, 0.1 width margin.
 
-Rim grasps (`rim_grasps`). A container standing upright (a mug, a cup, a bowl) is held by its wall, one pad
-inside and one outside, at points around the rim of its mesh.
+Rim grasps (`rim_grasps`). An open container standing upright (a bowl, cup or mug) is held across its
+rim's wall, the closing line radial through its axis, at angles around the rim (see the function).
 """
 
 from __future__ import annotations
