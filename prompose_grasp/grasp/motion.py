@@ -172,7 +172,7 @@ class _Mover:
     ):
         T_flange_tcp = gripper.T_flange_tcp
         self.parts: list[tuple[str, fcl.CollisionGeometry, np.ndarray, np.ndarray, str]] = []
-        for part in gripper.parts(opening_m if isinstance(gripper, ParallelJawGeometry) else None):
+        for part in gripper.parts(opening_m):  # a suction cup ignores the opening
             if part.shape == "box":
                 half = np.asarray(part.size_m, dtype=np.float64)
                 geom = fcl.Box(*(2.0 * half))

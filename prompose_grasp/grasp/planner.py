@@ -75,7 +75,7 @@ def gripper_hulls(
         (halves, centres): K half extents (x, y, z) [m], and (N, K, 3) box centres in the tcp frame [m]
         (the finger boxes move with `opening_m` (N,)).
     """
-    hulls = gripper.hull_boxes(0.0 if isinstance(gripper, ParallelJawGeometry) else None)
+    hulls = gripper.hull_boxes(0.0)  # the fingers at the tcp; they are moved to `opening_m` below
     halves, centres = [], []
     for name, (lo, hi) in hulls.items():
         lo, hi = lo.copy(), hi.copy()
