@@ -5,20 +5,15 @@ One `CollisionScene` holds, in `base`:
 - the support plane (an `fcl.Halfspace`, in its own manager: the arm's base links stand on it, so it is
   checked only against the links that must clear it, and against grippers analytically in the planner);
 - every other object as its estimated box (`fcl.Box`) or scaled mesh (`fcl.BVHModel`), fixtures likewise;
-- the observed point cloud without the target's own points and the support's, as voxel boxes: every occupied
-  voxel becomes a cube, and all cubes together one `fcl.BVHModel` (12 triangles a cube; a cube overlapped by a
-  gripper box is found because one of its triangles intersects or lies in the box);
+- the observed point cloud without the target's own points and the support's, as voxel cubes, one
+  `fcl.BVHModel` per 10 cm block (`voxels`);
 - the target itself (separately: grasps must touch it, so only some checks include it).
 
 Single queries (`collide_object`, `arm_hit`) go through fcl's `DynamicAABBTreeCollisionManager`
 (broadphase). Batched queries (hundreds of gripper poses, or arm configurations, at once: `boxes_first_hits`,
-`arm_hits_batch`) run their broadphase in numpy instead: world bounding boxes, then the separating-axis test
-between each query's oriented box and each scene item's oriented bounding box (obstacle boxes, the oriented
-bounds of meshes in their pose frame, 10 cm blocks of voxels). Box against box is decided there exactly (the
-test is exact for boxes), a box against voxels by the same test against each voxel cube of the overlapping
-blocks, and only the pairs left (a box or capsule against a mesh, a capsule against voxels or a box) go to
-fcl's narrowphase, one `fcl.collide` each, skipping queries already known to collide. Every query reports
-*what* was hit: the kind ("object", "fixture", "points", "target", "support") and the obstacle's name.
+`arm_hits_batch`) run their broadphase in numpy instead (`broadphase.first_hits`: separating axes and exact
+segment-box distances, fcl's narrowphase only for the pairs those leave open). Every query reports *what*
+was hit: the kind ("object", "fixture", "points", "target", "support") and the obstacle's name.
 """
 
 from __future__ import annotations
