@@ -1,7 +1,8 @@
 """Geometry core: numpy and scipy only (an import-linter contract keeps it so).
 
 Rigid transforms (`se3`), the 9-DoF box `Pose9D`, oriented-box IoU, camera intrinsics, point clouds
-(back-projection, farthest point sampling, the paper's robust descriptor) and the Chamfer distance.
+(back-projection, farthest point sampling, the paper's robust descriptor), the Chamfer distance, and
+distances and overlap tests between points, segments and oriented boxes (`distance`).
 """
 
 from typing import TYPE_CHECKING
@@ -50,6 +51,7 @@ __getattr__, __dir__ = attach(
         "boxes",
         "camera",
         "chamfer",
+        "distance",
         "occlusion",
         "pointcloud",
         "pose9d",

@@ -37,3 +37,7 @@ BOX_FLAT_RTOL = 1e-9
 #: and 1 nm say "the same pose up to rounding", far below anything a sensor can resolve.
 POSE_ALLCLOSE_RAD = 1e-9
 POSE_ALLCLOSE_M = 1e-9
+
+#: Slack of the separating-axis test [m] (and of its near-parallel edge axes [-]): boxes that touch count as
+#: overlapping, whatever the last bit of the float64 projections says (they are ~1e-16 relative off).
+SAT_EPS = 1e-12

@@ -12,22 +12,27 @@ from typing import TYPE_CHECKING
 from prompose_grasp._lazy import attach
 
 if TYPE_CHECKING:  # what the lazy attributes below resolve to, for type checkers and readers
+    from prompose_grasp.geometry.distance import obb_overlap
     from prompose_grasp.grasp.batch_ik import ik_branches_batch, ik_nearest_batch
+    from prompose_grasp.grasp.candidates import Candidates
     from prompose_grasp.grasp.grippers import (
         GRIPPER_KINDS,
         GRIPPER_TCP,
         GripperPart,
         ParallelJawGeometry,
         SuctionCupGeometry,
+        as_gripper,
         get_gripper,
     )
     from prompose_grasp.grasp.motion import (
+        GripperAction,
         MotionConfig,
         MotionSegment,
         PickPlaceMotion,
         check_path,
         plan_pick_place,
     )
+    from prompose_grasp.grasp.parallel_jaw import antipodal_grasps, box_grasps
     from prompose_grasp.grasp.place import (
         PalletPattern,
         PalletSlot,
@@ -38,27 +43,34 @@ if TYPE_CHECKING:  # what the lazy attributes below resolve to, for type checker
         pallet_slots,
         plan_place,
     )
-    from prompose_grasp.grasp.planner import build_scene, generate_candidates, gripper_hulls, plan_grasps
-    from prompose_grasp.grasp.scene import CollisionScene, Hit, obb_overlap, voxelize_points
-    from prompose_grasp.grasp.synthesis import Candidates, antipodal_grasps, box_grasps, suction_grasps
+    from prompose_grasp.grasp.planner import build_scene, gripper_hulls, plan_grasps
+    from prompose_grasp.grasp.scene import CollisionScene, Hit
+    from prompose_grasp.grasp.suction import suction_grasps
+    from prompose_grasp.grasp.synthesis import generate_candidates
     from prompose_grasp.grasp.types import Grasp, GraspConfig, GraspPlan, ObjectModel, Plane
+    from prompose_grasp.grasp.voxels import voxelize_points
 
 __getattr__, __dir__ = attach(
     __name__,
     {
+        # the separating-axis test lives in the geometry layer; the grasp layer's collision checks use it
+        "prompose_grasp.geometry.distance": ("obb_overlap",),
         "prompose_grasp.grasp.batch_ik": (
             "ik_branches_batch",
             "ik_nearest_batch",
         ),
+        "prompose_grasp.grasp.candidates": ("Candidates",),
         "prompose_grasp.grasp.grippers": (
             "GRIPPER_KINDS",
             "GRIPPER_TCP",
             "GripperPart",
             "ParallelJawGeometry",
             "SuctionCupGeometry",
+            "as_gripper",
             "get_gripper",
         ),
         "prompose_grasp.grasp.motion": (
+            "GripperAction",
             "MotionConfig",
             "MotionSegment",
             "PickPlaceMotion",
@@ -75,24 +87,22 @@ __getattr__, __dir__ = attach(
             "pallet_slots",
             "plan_place",
         ),
+        "prompose_grasp.grasp.parallel_jaw": (
+            "antipodal_grasps",
+            "box_grasps",
+        ),
         "prompose_grasp.grasp.planner": (
             "build_scene",
-            "generate_candidates",
             "gripper_hulls",
             "plan_grasps",
         ),
         "prompose_grasp.grasp.scene": (
             "CollisionScene",
             "Hit",
-            "obb_overlap",
-            "voxelize_points",
         ),
-        "prompose_grasp.grasp.synthesis": (
-            "Candidates",
-            "antipodal_grasps",
-            "box_grasps",
-            "suction_grasps",
-        ),
+        "prompose_grasp.grasp.suction": ("suction_grasps",),
+        "prompose_grasp.grasp.synthesis": ("generate_candidates",),
+        "prompose_grasp.grasp.voxels": ("voxelize_points",),
         "prompose_grasp.grasp.types": (
             "Grasp",
             "GraspConfig",
@@ -103,14 +113,20 @@ __getattr__, __dir__ = attach(
     },
     submodules=(
         "batch_ik",
+        "broadphase",
+        "candidates",
         "grippers",
         "motion",
+        "parallel_jaw",
         "place",
         "planner",
         "scene",
+        "self_filter",
+        "suction",
         "surface",
         "synthesis",
         "types",
+        "voxels",
     ),
 )
 
@@ -122,6 +138,7 @@ __all__ = [
     "Grasp",
     "GraspConfig",
     "GraspPlan",
+    "GripperAction",
     "GripperPart",
     "Hit",
     "MotionConfig",
@@ -137,6 +154,7 @@ __all__ = [
     "Plane",
     "SuctionCupGeometry",
     "antipodal_grasps",
+    "as_gripper",
     "box_grasps",
     "build_scene",
     "check_path",

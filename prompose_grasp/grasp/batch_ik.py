@@ -22,7 +22,15 @@ from prompose_grasp.robot.kinematics import (
 )
 from prompose_grasp.robot.ur_models import URSpec
 
-__all__ = ["ik_branches_batch", "ik_nearest_batch", "link_frames_batch", "nearest_in_limits_batch"]
+__all__ = [
+    "FK_REACH_TOL",
+    "branch_order",
+    "fk_reaches",
+    "ik_branches_batch",
+    "ik_nearest_batch",
+    "link_frames_batch",
+    "nearest_in_limits_batch",
+]
 
 # Same meaning and values as in robot.kinematics (arcsin/arccos argument slack, wrist singularity).
 _ARG_SLACK = 1e-9
@@ -240,6 +248,31 @@ def ik_nearest_batch(
     # The unpicked branches are left unverified; the picked ones that failed are marked NaN.
     shifted = np.where(ok[:, :, None], shifted, np.nan)
     return q_out, np.asarray(found, dtype=bool), shifted
+
+
+#: A configuration reaches a flange pose when its forward kinematics lands within this of it, in position [m]
+#: and in the Frobenius norm of the rotation difference [-] (exact closed-form solutions land at ~1e-15).
+FK_REACH_TOL = 1e-7
+
+
+def fk_reaches(T_fk: np.ndarray, T_base_flange: np.ndarray) -> np.ndarray:
+    """(...,) True where forward-kinematics poses `T_fk` (..., 4, 4) equal the flange poses `T_base_flange`
+    (..., 4, 4) within `FK_REACH_TOL`: the check for a branch not verified when it was solved."""
+    T_fk, T = np.asarray(T_fk, dtype=np.float64), np.asarray(T_base_flange, dtype=np.float64)
+    return (np.linalg.norm(T_fk[..., :3, 3] - T[..., :3, 3], axis=-1) <= FK_REACH_TOL) & (
+        np.linalg.norm(T_fk[..., :3, :3] - T[..., :3, :3], axis=(-2, -1)) <= FK_REACH_TOL
+    )
+
+
+def branch_order(q_first: np.ndarray, branches: np.ndarray) -> list[np.ndarray]:
+    """The picked solution `q_first` (6,) first, then the other existing branches of `branches` (8, 6)
+    (`ik_nearest_batch`'s, nearest the seed first; NaN rows absent) that differ from it."""
+    out = [q_first]
+    for q in branches:
+        # Same configuration up to rounding (the branches come from the same arithmetic).
+        if np.all(np.isfinite(q)) and float(np.max(np.abs(q - q_first))) > 1e-9:
+            out.append(q)
+    return out
 
 
 def _branches_unverified(spec: URSpec, T: np.ndarray, q6_if_singular) -> tuple[np.ndarray, np.ndarray]:

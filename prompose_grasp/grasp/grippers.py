@@ -35,6 +35,7 @@ __all__ = [
     "GripperPart",
     "ParallelJawGeometry",
     "SuctionCupGeometry",
+    "as_gripper",
     "get_gripper",
 ]
 
@@ -315,23 +316,36 @@ class SuctionCupGeometry:
 
 GripperGeometry = ParallelJawGeometry | SuctionCupGeometry
 
+#: The gripper geometry types by kind (the string of config files and the command line).
+_GRIPPER_TYPES: dict[str, type[ParallelJawGeometry] | type[SuctionCupGeometry]] = {
+    t.kind: t for t in (ParallelJawGeometry, SuctionCupGeometry)
+}
+
 #: Gripper kinds and their default geometry.
-GRIPPER_KINDS: tuple[str, ...] = ("parallel_jaw", "suction")
+GRIPPER_KINDS: tuple[str, ...] = tuple(_GRIPPER_TYPES)
 
 #: T_flange_tcp (4, 4) of each gripper type with its default geometry.
-GRIPPER_TCP: dict[str, np.ndarray] = {
-    "parallel_jaw": ParallelJawGeometry().T_flange_tcp,
-    "suction": SuctionCupGeometry().T_flange_tcp,
-}
+GRIPPER_TCP: dict[str, np.ndarray] = {kind: t().T_flange_tcp for kind, t in _GRIPPER_TYPES.items()}
 
 
 def get_gripper(kind: str) -> ParallelJawGeometry | SuctionCupGeometry:
     """The default geometry of a gripper kind ("parallel_jaw" or "suction")."""
-    if kind == "parallel_jaw":
-        return ParallelJawGeometry()
-    if kind == "suction":
-        return SuctionCupGeometry()
-    raise UnknownNameError("gripper", kind, GRIPPER_KINDS)
+    if not isinstance(kind, str) or kind not in _GRIPPER_TYPES:
+        raise UnknownNameError("gripper", kind, GRIPPER_KINDS)
+    return _GRIPPER_TYPES[kind]()
+
+
+def as_gripper(gripper: object) -> ParallelJawGeometry | SuctionCupGeometry:
+    """A gripper geometry from a geometry (returned as is) or a kind ("parallel_jaw", "suction": its default
+    geometry), for the planners' `gripper` argument."""
+    if isinstance(gripper, str):
+        return get_gripper(gripper)
+    if not isinstance(gripper, (ParallelJawGeometry, SuctionCupGeometry)):
+        raise InvalidInputError(
+            "gripper must be 'parallel_jaw', 'suction', a ParallelJawGeometry or a SuctionCupGeometry, "
+            f"got {type(gripper).__name__}"
+        )
+    return gripper
 
 
 def _group_bounds(parts: tuple[GripperPart, ...]) -> dict[str, tuple[np.ndarray, np.ndarray]]:

@@ -22,25 +22,27 @@ import dataclasses
 import itertools
 import math
 from dataclasses import dataclass
+from enum import Enum
 
 import fcl
 import numpy as np
 from numpy.typing import ArrayLike
 
 from prompose_grasp.errors import InvalidInputError, NoFeasibleMotion
+from prompose_grasp.geometry.distance import segment_box_distance
 from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.geometry.se3 import invert_T
 from prompose_grasp.grasp.batch_ik import ik_nearest_batch, link_frames_batch
-from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry
+from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry, as_gripper
 from prompose_grasp.grasp.place import PlacePose, PlaceTarget
-from prompose_grasp.grasp.planner import _gripper
-from prompose_grasp.grasp.scene import CollisionScene, Hit, _segment_box_distance
+from prompose_grasp.grasp.scene import CollisionScene, Hit
 from prompose_grasp.grasp.types import Grasp, ObjectModel
 from prompose_grasp.robot.interfaces import JointTrajectory
 from prompose_grasp.robot.model import RobotModel
 from prompose_grasp.robot.trajectory import joint_trajectory
 
 __all__ = [
+    "GripperAction",
     "MotionConfig",
     "MotionSegment",
     "PickPlaceMotion",
@@ -91,6 +93,15 @@ class MotionConfig:
                 raise InvalidInputError(f"MotionConfig.{name} must be finite and > 0, got {v!r}")
 
 
+class GripperAction(Enum):
+    """What the gripper does when a segment ends: nothing, close on the object (jaws close, vacuum on), or
+    open to let it go."""
+
+    NONE = "none"
+    CLOSE = "close"
+    OPEN = "open"
+
+
 @dataclass(frozen=True, eq=False)
 class MotionSegment:
     """One segment of the motion.
@@ -103,6 +114,8 @@ class MotionSegment:
         trajectory: the waypoints timed as synchronised rest-to-rest joint moves at the control period.
         holding: the object is held during the segment.
         opening_m: the jaw opening during the segment [m].
+        gripper_after: what the gripper does once the arm has followed the segment (CLOSE after the
+            approach, OPEN after the descent to the place pose).
     """
 
     name: str
@@ -112,6 +125,7 @@ class MotionSegment:
     trajectory: JointTrajectory
     holding: bool
     opening_m: float
+    gripper_after: GripperAction = GripperAction.NONE
 
 
 @dataclass(frozen=True, eq=False)
@@ -158,7 +172,7 @@ class _Mover:
     ):
         T_flange_tcp = gripper.T_flange_tcp
         self.parts: list[tuple[str, fcl.CollisionGeometry, np.ndarray, np.ndarray, str]] = []
-        for part in gripper.parts(opening_m if isinstance(gripper, ParallelJawGeometry) else None):
+        for part in gripper.parts(opening_m):  # a suction cup ignores the opening
             if part.shape == "box":
                 half = np.asarray(part.size_m, dtype=np.float64)
                 geom = fcl.Box(*(2.0 * half))
@@ -245,7 +259,7 @@ def _held_arm_hits(
     T_obj = frames[:, 7] @ np.asarray(T_flange_obj, dtype=np.float64)  # (N, 4, 4)
     half = np.maximum(held.pose.size / 2.0 - cfg.contact_margin_m, 1e-4)
     C = len(names)
-    d = _segment_box_distance(
+    d = segment_box_distance(
         p0.reshape(-1, 3),
         p1.reshape(-1, 3),
         np.repeat(T_obj[:, :3, 3], C, axis=0),
@@ -387,7 +401,7 @@ def plan_pick_place(
         NoFeasibleMotion: a segment has no IK along its line or collides (its name and what it hit).
     """
     cfg = config or MotionConfig()
-    grip = _gripper(gripper)
+    grip = as_gripper(gripper)
     if grasp.q is None:
         raise InvalidInputError("grasp.q is None: plan the grasp with plan_grasps (it sets q)")
     T_tcp_flange = invert_T(grip.T_flange_tcp)
@@ -397,11 +411,21 @@ def plan_pick_place(
     segments: list[MotionSegment] = []
     is_suction = isinstance(grip, SuctionCupGeometry)
 
-    def add(name, kind, W, holding, include_target, scene):
+    def add(name, kind, W, holding, include_target, scene, gripper_after=GripperAction.NONE):
         if W is None:
             raise NoFeasibleMotion(name, "no IK solution along the straight tcp line on the same branch")
         held = obj if holding else None
-        S, hit = check_path(robot, scene, W, grip, opening, include_target, held, T_tcp_obj, cfg)
+        S, hit = check_path(
+            robot,
+            scene,
+            W,
+            grip,
+            opening,
+            include_target=include_target,
+            held=held,
+            T_tcp_obj=T_tcp_obj,
+            config=cfg,
+        )
         if hit is not None:
             raise NoFeasibleMotion(name, f"{hit.reason}: {hit.name}")
         if holding and is_suction:  # the cup holds by lip friction: the carried box's centre is kept gentle
@@ -409,7 +433,7 @@ def plan_pick_place(
             traj = timed_held_trajectory(robot, W, cfg, T_flange_obj, cfg.suction_held_accel_m_s2)
         else:
             traj = timed_trajectory(robot, W, cfg)
-        segments.append(MotionSegment(name, kind, W, S, traj, holding, opening))
+        segments.append(MotionSegment(name, kind, W, S, traj, holding, opening, gripper_after))
         return W[-1]
 
     # Approach: from the pre-grasp down the line to the grasp (walked backwards from the grasp's q, so the
@@ -417,13 +441,11 @@ def plan_pick_place(
     W_back = _line(robot, grasp.T_base_tcp, grasp.T_base_pregrasp, grasp.q, T_tcp_flange, cfg.line_step_m)
     W_approach = None if W_back is None else W_back[::-1]
     if q_start is not None and W_approach is not None:
-        q0 = robot._q(q_start, "q_start")
-        W_to = free_move(
-            robot, scene_pick, q0, W_approach[0], grip, opening, None, T_tcp_obj, cfg, T_tcp_flange, False
-        )
+        q0 = robot.check_q(q_start, "q_start")
+        W_to = free_move(robot, scene_pick, q0, W_approach[0], gripper=grip, opening_m=opening, config=cfg)
         add("to_pregrasp", "joint", W_to, False, True, scene_pick)
     # The suction cup ends in contact with the target's face; the jaws stay clear of it until they close.
-    add("approach", "line", W_approach, False, not is_suction, scene_pick)
+    add("approach", "line", W_approach, False, not is_suction, scene_pick, GripperAction.CLOSE)
     q = add(
         "lift",
         "line",
@@ -436,26 +458,71 @@ def plan_pick_place(
     if W_pre is None:
         raise NoFeasibleMotion("descend", "no IK solution along the straight line above the place pose")
     W_transfer = free_move(
-        robot, held_scene, q, W_pre[-1], grip, opening, obj, T_tcp_obj, cfg, T_tcp_flange, True
+        robot,
+        held_scene,
+        q,
+        W_pre[-1],
+        gripper=grip,
+        opening_m=opening,
+        held=obj,
+        T_tcp_obj=T_tcp_obj,
+        config=cfg,
     )
     add("transfer", "joint", W_transfer, True, False, held_scene)
-    add("descend", "line", W_pre[::-1], True, False, held_scene)
+    add("descend", "line", W_pre[::-1], True, False, held_scene, GripperAction.OPEN)
     W_ret = _line(robot, place.T_base_tcp, place.T_base_retreat, place.q, T_tcp_flange, cfg.line_step_m)
     add("retreat", "line", W_ret, False, False, held_scene)
     return PickPlaceMotion(tuple(segments), grasp, place)
 
 
-def free_move(robot, scene, q0, q1, grip, opening, held, T_tcp_obj, cfg, T_tcp_flange, holding) -> np.ndarray:
-    """A free move: the joint line q0 -> q1, or, when it collides, a detour: straight up from q0, a joint line
-    across, straight down to q1, at 1, 2, 3 or 4 x `safe_height_m` above the higher end (the first free;
-    carrying an object, 0, 1/3 and 2/3 x first)."""
-    held = held if holding else None
+def free_move(
+    robot: RobotModel,
+    scene: CollisionScene,
+    q0: ArrayLike,
+    q1: ArrayLike,
+    *,
+    gripper: ParallelJawGeometry | SuctionCupGeometry,
+    opening_m: float,
+    held: ObjectModel | None = None,
+    T_tcp_obj: np.ndarray | None = None,
+    config: MotionConfig | None = None,
+) -> np.ndarray:
+    """A free move: the joint line q0 -> q1 (6,) [rad], or, when it collides, a detour: straight up from q0, a
+    joint line across, straight down to q1, at 1, 2, 3 or 4 x `safe_height_m` above the higher end (the first
+    free; carrying an object, 0, 1/3 and 2/3 x first). Returns the joint waypoints (K, 6) [rad].
+
+    Args:
+        gripper, opening_m: the gripper and its opening during the move [m].
+        held: the object carried (`T_tcp_obj` (4, 4) its pose in the tcp frame), or None: then the target
+            is an obstacle.
+        config: `MotionConfig`.
+
+    Raises:
+        NoFeasibleMotion: the line collides and no detour is free and reachable ("transfer" when carrying,
+            else "to_pregrasp").
+    """
+    if held is not None and T_tcp_obj is None:
+        raise InvalidInputError("free_move: a held object needs its pose in the tcp frame (T_tcp_obj)")
+    cfg = config or MotionConfig()
+    holding = held is not None
+    T_tcp_flange = invert_T(gripper.T_flange_tcp)
+    q0, q1 = np.asarray(q0, dtype=np.float64), np.asarray(q1, dtype=np.float64)
     W = np.array([q0, q1])
-    _, hit = check_path(robot, scene, W, grip, opening, not holding, held, T_tcp_obj, cfg)
+    _, hit = check_path(
+        robot,
+        scene,
+        W,
+        gripper,
+        opening_m,
+        include_target=not holding,
+        held=held,
+        T_tcp_obj=T_tcp_obj,
+        config=cfg,
+    )
     if hit is None:
         return W
-    T0 = robot.fk(q0) @ grip.T_flange_tcp
-    T1 = robot.fk(q1) @ grip.T_flange_tcp
+    T0 = robot.fk(q0) @ gripper.T_flange_tcp
+    T1 = robot.fk(q1) @ gripper.T_flange_tcp
     up = np.array([0.0, 0.0, 1.0]) if scene.support is None else np.asarray(scene.support.normal)
     h0, h1 = float(T0[:3, 3] @ up), float(T1[:3, 3] @ up)
     # Carrying an object, lower detours first (at the higher end's own height, then a third and two thirds
@@ -470,7 +537,17 @@ def free_move(robot, scene, q0, q1, grip, opening, held, T_tcp_obj, cfg, T_tcp_f
         if up0 is None or down1 is None:
             break  # higher is out of reach too
         W = np.vstack([up0, down1[::-1]])
-        _, detour_hit = check_path(robot, scene, W, grip, opening, not holding, held, T_tcp_obj, cfg)
+        _, detour_hit = check_path(
+            robot,
+            scene,
+            W,
+            gripper,
+            opening_m,
+            include_target=not holding,
+            held=held,
+            T_tcp_obj=T_tcp_obj,
+            config=cfg,
+        )
         if detour_hit is None:
             return W
     name = "transfer" if holding else "to_pregrasp"

@@ -31,9 +31,9 @@ from numpy.typing import ArrayLike
 
 from prompose_grasp.errors import InvalidInputError, NoFeasiblePlace
 from prompose_grasp.geometry.se3 import as_transform, invert_T, make_T
-from prompose_grasp.grasp.batch_ik import ik_nearest_batch
-from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry
-from prompose_grasp.grasp.planner import _branch_order, _gripper, _verified, gripper_hulls
+from prompose_grasp.grasp.batch_ik import branch_order, fk_reaches, ik_nearest_batch
+from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry, as_gripper
+from prompose_grasp.grasp.planner import gripper_hulls
 from prompose_grasp.grasp.scene import CollisionScene
 from prompose_grasp.grasp.types import Grasp, ObjectModel
 from prompose_grasp.robot.model import RobotModel
@@ -41,6 +41,7 @@ from prompose_grasp.robot.model import RobotModel
 log = logging.getLogger(__name__)
 
 __all__ = [
+    "PLACE_KINDS",
     "PalletPattern",
     "PalletSlot",
     "PlaceConfig",
@@ -52,7 +53,8 @@ __all__ = [
     "plan_place",
 ]
 
-_KINDS = ("surface", "bin", "pallet")
+#: The kinds of place target.
+PLACE_KINDS = ("surface", "bin", "pallet")
 
 
 @dataclass(frozen=True)
@@ -95,8 +97,10 @@ class PlaceTarget:
     pattern: PalletPattern | None = None
 
     def __post_init__(self) -> None:
-        if self.kind not in _KINDS:
-            raise InvalidInputError(f"PlaceTarget.kind must be one of {', '.join(_KINDS)}, got {self.kind!r}")
+        if self.kind not in PLACE_KINDS:
+            raise InvalidInputError(
+                f"PlaceTarget.kind must be one of {', '.join(PLACE_KINDS)}, got {self.kind!r}"
+            )
         object.__setattr__(self, "T_base_surface", as_transform(self.T_base_surface, "T_base_surface"))
         half = np.asarray(self.half_extents_xy_m, dtype=np.float64)
         if half.shape != (2,) or not np.all(np.isfinite(half)) or np.any(half <= 0):
@@ -266,8 +270,12 @@ def plan_place(
             the exception's `__cause__`).
     """
     cfg = config or PlaceConfig()
-    grip = _gripper(gripper)
-    seed = (grasp.q if grasp.q is not None else np.zeros(6)) if q_seed is None else robot._q(q_seed, "q_seed")
+    grip = as_gripper(gripper)
+    seed = (
+        (grasp.q if grasp.q is not None else np.zeros(6))
+        if q_seed is None
+        else robot.check_q(q_seed, "q_seed")
+    )
     if scene is None:
         scene = CollisionScene(obstacles, None, points_base, None)
     T_surf = target.T_base_surface
@@ -345,8 +353,8 @@ def plan_place(
         # Every in-limit branch, nearest the seed first, until one has a free arm and reaches the approach
         # and retreat poses on the same branch.
         why, q_ok = "arm_collision", None
-        for qb in _branch_order(q[0], branches[0]):
-            if not _verified(robot, qb, Ts[0]):
+        for qb in branch_order(q[0], branches[0]):
+            if not fk_reaches(robot.fk(qb), Ts[0]):
                 continue
             q_near, ok_near, _ = ik_nearest_batch(robot.spec, Ts[1:], np.vstack([qb, qb]), lower, upper)
             if not np.all(ok_near) or np.max(np.linalg.norm(q_near - qb, axis=1)) > 1.0:

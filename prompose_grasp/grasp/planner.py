@@ -2,8 +2,9 @@
 
 Stages, each on the survivors of the one before (a candidate counts once, for the first check it fails):
 
-1. synthesis (`synthesis.py`): box, antipodal and suction candidates, and for a target whose box is wider
-   than the stroke, section grasps on its seen surface (`surface.py`); capped at `max_candidates` (best
+1. synthesis (`synthesis.py`): box, antipodal and rim candidates (`parallel_jaw.py`), suction candidates
+   (`suction.py`), and for a target whose box is wider than the stroke, section grasps on its seen surface
+   (`surface.py`); capped at `max_candidates` (best
    quality first); generators already mark "stroke" (too wide for the jaws), "payload" (too heavy for the
    cup) and "suction_not_flat" (the cup would not seal on the mesh);
 2. "support": the gripper, swept from the pre-grasp to the grasp, dips below the support plane plus
@@ -35,32 +36,18 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from prompose_grasp.errors import InvalidInputError, NoFeasibleGrasp
-from prompose_grasp.geometry.camera import CameraIntrinsics
-from prompose_grasp.geometry.pointcloud import back_project, valid_depth_mask
-from prompose_grasp.geometry.se3 import as_transform, invert_T, transform_points
-from prompose_grasp.grasp.batch_ik import ik_nearest_batch
-from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry, get_gripper
-from prompose_grasp.grasp.scene import CollisionScene, segment_distance
-from prompose_grasp.grasp.surface import needs_sections, section_grasps
-from prompose_grasp.grasp.synthesis import (
-    Candidates,
-    antipodal_grasps,
-    box_grasps,
-    rim_grasps,
-    suction_grasps,
-)
+from prompose_grasp.geometry.se3 import invert_T
+from prompose_grasp.grasp.batch_ik import fk_reaches, ik_nearest_batch
+from prompose_grasp.grasp.candidates import Candidates
+from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry, as_gripper
+from prompose_grasp.grasp.scene import CollisionScene
+from prompose_grasp.grasp.self_filter import robot_self_capsules
+from prompose_grasp.grasp.synthesis import generate_candidates
 from prompose_grasp.grasp.types import Grasp, GraspConfig, GraspPlan, ObjectModel, Plane
 from prompose_grasp.robot.kinematics import fk_batch
 from prompose_grasp.robot.model import RobotModel
 
-__all__ = [
-    "build_scene",
-    "generate_candidates",
-    "gripper_hulls",
-    "plan_grasps",
-    "robot_pixel_mask",
-    "robot_self_capsules",
-]
+__all__ = ["build_scene", "gripper_hulls", "plan_grasps"]
 
 log = logging.getLogger(__name__)
 
@@ -79,41 +66,6 @@ def _config(config: object) -> GraspConfig:
     return config
 
 
-def _gripper(gripper) -> ParallelJawGeometry | SuctionCupGeometry:
-    if isinstance(gripper, str):
-        return get_gripper(gripper)
-    if not isinstance(gripper, (ParallelJawGeometry, SuctionCupGeometry)):
-        raise InvalidInputError(
-            "gripper must be 'parallel_jaw', 'suction', a ParallelJawGeometry or a SuctionCupGeometry, "
-            f"got {type(gripper).__name__}"
-        )
-    return gripper
-
-
-def generate_candidates(
-    target: ObjectModel,
-    gripper: ParallelJawGeometry | SuctionCupGeometry,
-    config: GraspConfig,
-    support: Plane | None = None,
-) -> Candidates:
-    """All candidates of the gripper's kind, capped at `config.max_candidates` (unrejected, best first)."""
-    if isinstance(gripper, ParallelJawGeometry):
-        parts = [
-            box_grasps(target, gripper, config, support),
-            antipodal_grasps(target, gripper, config, support),
-            rim_grasps(target, gripper, config, support),
-        ]
-        if needs_sections(target, gripper, config):  # the box is wider than the stroke: its narrow parts
-            parts.append(section_grasps(target, gripper, config, support))
-        cands = Candidates.concat(parts)
-    else:
-        cands = suction_grasps(target, gripper, config, support)
-    if len(cands) > config.max_candidates:
-        order = np.lexsort((-cands.quality, cands.pre_rejected != ""))
-        cands = cands.take(order[: config.max_candidates])
-    return cands
-
-
 def gripper_hulls(
     gripper: ParallelJawGeometry | SuctionCupGeometry, opening_m: np.ndarray, sweep_m: float
 ) -> tuple[list[tuple[float, float, float]], np.ndarray]:
@@ -123,7 +75,7 @@ def gripper_hulls(
         (halves, centres): K half extents (x, y, z) [m], and (N, K, 3) box centres in the tcp frame [m]
         (the finger boxes move with `opening_m` (N,)).
     """
-    hulls = gripper.hull_boxes(0.0 if isinstance(gripper, ParallelJawGeometry) else None)
+    hulls = gripper.hull_boxes(0.0)  # the fingers at the tcp; they are moved to `opening_m` below
     halves, centres = [], []
     for name, (lo, hi) in hulls.items():
         lo, hi = lo.copy(), hi.copy()
@@ -195,126 +147,6 @@ def _lift_off_support(
     return out
 
 
-def robot_self_capsules(
-    robot: RobotModel, gripper: ParallelJawGeometry | SuctionCupGeometry, q: np.ndarray
-) -> list[tuple[str, np.ndarray, np.ndarray, float]]:
-    """The arm's capsules at q plus one capsule around the gripper (flange to tcp, radius of its widest part),
-    in `base`: where the camera sees the robot itself."""
-    T_flange = robot.fk(q)
-    lo, hi = (
-        np.min([b[0] for b in gripper.hull_boxes().values()], axis=0),
-        np.max([b[1] for b in gripper.hull_boxes().values()], axis=0),
-    )
-    radius = float(np.linalg.norm(np.maximum(np.abs(lo[:2]), np.abs(hi[:2]))))
-    tip = (T_flange @ gripper.T_flange_tcp)[:3, 3]
-    return [*robot.capsules_in_base(q), ("gripper", T_flange[:3, 3], tip, radius)]
-
-
-#: Along its ray a depth reading is off by the sensor's noise: a D400-class stereo camera's is ~1 % of the
-#: range rms, so among the ~10^4 pixels of an arm in view a few read 3-4 cm nearer than its surface. A reading
-#: inside the arm's silhouette no nearer than its front less this share of the range is the arm.
-_RAY_BAND_FRACTION = 0.03
-#: The capsules' axes are sampled this finely for their silhouettes [m] (a union of spheres is the capsule).
-_SILHOUETTE_STEP_M = 0.01
-
-
-def _arm_silhouette(
-    shape: tuple[int, int],
-    intrinsics: CameraIntrinsics,
-    caps_cam: Sequence[tuple[np.ndarray, float]],
-    margin_m: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """(H, W) ranges [m] along each pixel's ray where it enters the capsules (grown by `margin_m`) first and
-    leaves them again, inf where it misses them all: each capsule as spheres along its axis
-    (`_SILHOUETTE_STEP_M` apart; a union of spheres is the capsule), each ray's entry and exit exact per
-    sphere, overlapping spans merged."""
-    H, W = shape
-    front = np.full(shape, np.inf)
-    back = np.full(shape, np.inf)
-    for (p0, p1), radius in caps_cam:
-        R = radius + margin_m
-        n = max(2, int(np.ceil(np.linalg.norm(p1 - p0) / _SILHOUETTE_STEP_M)) + 1)
-        for q in np.linspace(p0, p1, n):
-            if q[2] <= R:  # the sphere reaches behind the camera: no silhouette to draw
-                continue
-            u = intrinsics.fx * q[0] / q[2] + intrinsics.cx
-            v = intrinsics.fy * q[1] / q[2] + intrinsics.cy
-            rad = intrinsics.fx * R / np.sqrt(q[2] ** 2 - R**2) + 1.0  # the projected radius, a pixel more
-            x0, x1 = max(0, int(u - rad)), min(W, int(u + rad) + 2)
-            y0, y1 = max(0, int(v - rad)), min(H, int(v + rad) + 2)
-            if x0 >= x1 or y0 >= y1:
-                continue
-            yy, xx = np.mgrid[y0:y1, x0:x1]
-            d = np.stack([(xx - intrinsics.cx) / intrinsics.fx, (yy - intrinsics.cy) / intrinsics.fy,
-                          np.ones(xx.shape)], axis=-1)  # fmt: skip
-            d /= np.linalg.norm(d, axis=-1, keepdims=True)
-            along = d @ q
-            half = np.sqrt(np.maximum(R**2 - (q @ q - along**2), 0.0))
-            hit = R**2 >= q @ q - along**2
-            entry, exit_ = along - half, along + half
-            f, b = front[y0:y1, x0:x1], back[y0:y1, x0:x1]
-            nearer = hit & (entry < f)
-            joins = hit & ~nearer & (entry <= b)  # overlaps the span already there: one surface
-            # a nearer span replaces the one there, or extends it when the two overlap
-            overlaps = nearer & (exit_ >= f)
-            b[nearer & ~overlaps] = exit_[nearer & ~overlaps]
-            b[overlaps] = np.maximum(b[overlaps], exit_[overlaps])
-            f[nearer] = entry[nearer]
-            b[joins] = np.maximum(b[joins], exit_[joins])
-    return front, back
-
-
-def robot_pixel_mask(
-    depth_m: np.ndarray,
-    intrinsics: CameraIntrinsics,
-    T_base_cam: ArrayLike,
-    capsules: Sequence[tuple[str, np.ndarray, np.ndarray, float]],
-    margin_m: float = 0.03,
-) -> np.ndarray:
-    """(H, W) bool: the pixels whose depth reading lies on the robot itself (`robot_self_capsules` at the
-    joints of the capture, (name, p0, p1, radius) in `base`): within `margin_m` of a capsule, or, for the
-    arm's links, on a ray through them (grown by `margin_m`) between where it enters and leaves them, widened
-    by `_RAY_BAND_FRACTION` of the range (noise moves a reading along its ray, off the surface by more than
-    any fixed margin on a far arm; the table seen past the arm's edge lies farther). The gripper's capsule
-    has no such band: an object held in the jaws lies in front of it.
-
-    Robot self-filtering: a camera that sees the arm (a fixed camera with the arm parked in view) would
-    otherwise offer a link as an object to ground ("a large black box-shaped object", 0.49 m tall, next to
-    the tea box), and a reading off the arm would stand in the collision scene as an obstacle. Pixels without
-    a reading are never on the robot.
-    """
-    D = np.asarray(depth_m)
-    T = as_transform(T_base_cam, "T_base_cam")
-    out = np.zeros(D.shape, dtype=bool)
-    valid = valid_depth_mask(D)
-    if not capsules or not valid.any():
-        return out
-    idx = np.flatnonzero(valid)
-    P = back_project(D, intrinsics)  # camera frame, row-major order of the valid pixels
-    # The capsules move to the camera frame (a few end points) rather than the frame's ~300k points to base.
-    T_cam_base = invert_T(T)
-    caps = [(transform_points(T_cam_base, np.stack([p0, p1])), float(r)) for _, p0, p1, r in capsules]
-    # Only points inside the capsules' common bounding box (grown by radius + margin) can be on the robot.
-    ends = np.concatenate([e for e, _ in caps])
-    grow = max(r for _, r in caps) + float(margin_m)
-    near = np.flatnonzero(np.all((P >= ends.min(axis=0) - grow) & (P <= ends.max(axis=0) + grow), axis=1))
-    Pn = P[near]
-    hit = np.zeros(len(Pn), dtype=bool)
-    for (p0, p1), radius in caps:
-        hit |= segment_distance(Pn, p0, p1) <= radius + float(margin_m)
-    on_robot = near[hit]
-    out.ravel()[idx[on_robot]] = True
-    arm = [c for c, (name, *_) in zip(caps, capsules) if name != "gripper"]
-    if arm:
-        front, back = _arm_silhouette(D.shape, intrinsics, arm, float(margin_m))
-        front, back = front.ravel()[idx], back.ravel()[idx]
-        rng = np.linalg.norm(P, axis=1)
-        band = np.maximum(float(margin_m), _RAY_BAND_FRACTION * rng)
-        on_ray = np.isfinite(front) & (rng >= front - band) & (rng <= back + band)
-        out.ravel()[idx[on_ray]] = True
-    return out
-
-
 def build_scene(
     target: ObjectModel,
     robot: RobotModel,
@@ -329,14 +161,14 @@ def build_scene(
     itself at `q_robot` (the configuration it had when the points were taken), the target's and the support's
     points, and the points already explained by obstacles."""
     cfg = _config(config)
-    grip = _gripper(gripper)
+    grip = as_gripper(gripper)
     if not isinstance(robot, RobotModel):
         raise InvalidInputError(f"robot must be a RobotModel (load_robot(...)), got {type(robot).__name__}")
     if isinstance(obstacles, ObjectModel) or not isinstance(obstacles, Sequence | set | frozenset):
         raise InvalidInputError(
             f"obstacles must be a list of ObjectModel values (base frame), got {type(obstacles).__name__}"
         )
-    caps = [] if q_robot is None else robot_self_capsules(robot, grip, robot._q(q_robot, "q_robot"))
+    caps = [] if q_robot is None else robot_self_capsules(robot, grip, robot.check_q(q_robot, "q_robot"))
     return CollisionScene(
         obstacles,
         support,
@@ -384,12 +216,12 @@ def plan_grasps(
     """
     t0 = time.perf_counter()
     cfg = _config(config)
-    grip = _gripper(gripper)
+    grip = as_gripper(gripper)
     if not isinstance(target, ObjectModel):
         raise InvalidInputError(f"target must be an ObjectModel in base, got {type(target).__name__}")
     if not isinstance(robot, RobotModel):
         raise InvalidInputError(f"robot must be a RobotModel (load_robot(...)), got {type(robot).__name__}")
-    seed = np.zeros(6) if q_seed is None else robot._q(q_seed, "q_seed")
+    seed = np.zeros(6) if q_seed is None else robot.check_q(q_seed, "q_seed")
     if scene is not None and not isinstance(scene, CollisionScene):
         raise InvalidInputError(f"scene must be a CollisionScene (build_scene), got {type(scene).__name__}")
     if scene is None:
@@ -561,7 +393,7 @@ def _free_branches(
     then the other in-limit ones nearest the seed, each verified by forward kinematics) whose link capsules
     are clear of the scene, or None. One batched arm query per branch rank."""
     out: list[np.ndarray | None] = [None] * len(idx)
-    # `_branch_order` on arrays: the picked solution, then the other existing branches (nearest first) that
+    # `branch_order` on arrays: the picked solution, then the other existing branches (nearest first) that
     # differ from it; alt_rank numbers those alternatives 1, 2, ...
     q_first = q_all[idx]
     B = branches[idx]  # (C, 8, 6)
@@ -580,7 +412,7 @@ def _free_branches(
             break
         if b > 0:
             # Branches other than the picked one are unverified: keep those whose forward kinematics reach.
-            good = _verified_batch(robot, Q, T_base_flange[rows])
+            good = fk_reaches(fk_batch(robot.spec, Q), T_base_flange[rows])
             rows, Q = [r for r, g in zip(rows, good) if g], Q[good]
             if not rows:
                 continue
@@ -588,14 +420,6 @@ def _free_branches(
             if hit is None:
                 out[r] = q
     return out
-
-
-def _verified_batch(robot: RobotModel, Q: np.ndarray, T_base_flange: np.ndarray) -> np.ndarray:
-    """(N,) `_verified` for N configurations at once."""
-    T = fk_batch(robot.spec, Q)
-    return (np.linalg.norm(T[:, :3, 3] - T_base_flange[:, :3, 3], axis=1) <= 1e-7) & (
-        np.linalg.norm(T[:, :3, :3] - T_base_flange[:, :3, :3], axis=(1, 2)) <= 1e-7
-    )
 
 
 def _distinct_placements(cands: Candidates, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -636,21 +460,3 @@ def _target_points_inside(
         inside &= np.abs(axes[2] - centres_tcp[:, None, k, 2]) <= half[2]
         hit |= inside.any(axis=1)
     return hit
-
-
-def _branch_order(q_first: np.ndarray, branches: np.ndarray) -> list[np.ndarray]:
-    """The picked solution first, then the other in-limit branches nearest the seed first."""
-    out = [q_first]
-    for q in branches:
-        # Same configuration up to rounding (the branches come from the same arithmetic).
-        if np.all(np.isfinite(q)) and float(np.max(np.abs(q - q_first))) > 1e-9:
-            out.append(q)
-    return out
-
-
-def _verified(robot: RobotModel, q: np.ndarray, T_base_flange: np.ndarray) -> bool:
-    T = robot.fk(q)
-    # Same acceptance as the closed-form branches of the robot layer (exact solutions land at ~1e-15).
-    return bool(np.linalg.norm(T[:3, 3] - T_base_flange[:3, 3]) <= 1e-7) and bool(
-        np.linalg.norm(T[:3, :3] - T_base_flange[:3, :3]) <= 1e-7
-    )

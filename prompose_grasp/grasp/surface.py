@@ -1,6 +1,6 @@
 """Parallel-jaw grasps on the seen surface: top-down across a narrow part of an object wider than the stroke.
 
-The box and mesh grasps (`synthesis`) close across the estimated box or the scaled prior. An object whose
+The box and mesh grasps (`parallel_jaw`) close across the estimated box or the scaled prior. An object whose
 box is wider than the stroke on both footprint axes (a frying pan, a toy aeroplane, a hammer lying flat)
 has no such grasp, although a part of it (a handle, a wing, a rim, a neck) would fit between the jaws, and
 a prior of another shape says nothing about where that part is. The seen surface does.
@@ -34,8 +34,9 @@ import math
 import numpy as np
 from scipy.ndimage import grey_closing
 
+from prompose_grasp.geometry.distance import cross
+from prompose_grasp.grasp.candidates import Candidates, Reasons, stack_transforms
 from prompose_grasp.grasp.grippers import ParallelJawGeometry
-from prompose_grasp.grasp.synthesis import _T, Candidates, Reasons, cross
 from prompose_grasp.grasp.types import GraspConfig, ObjectModel, Plane
 
 __all__ = ["needs_sections", "section_grasps"]
@@ -227,7 +228,7 @@ def section_grasps(
         )
 
     return Candidates(
-        _T(R, tcp),
+        stack_transforms(R, tcp),
         opening[c_idx, k_idx][pick],
         widths,
         contacts,

@@ -31,7 +31,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from prompose_grasp.errors import InvalidInputError
-from prompose_grasp.grasp import PalletPattern, PlaceTarget
+from prompose_grasp.grasp.place import PLACE_KINDS, PalletPattern, PlaceTarget
 from prompose_grasp.hardware.calibration import check_rigid, read_cell_file
 from prompose_grasp.pipeline.command import PLACE_TARGETS
 
@@ -116,20 +116,25 @@ def _entry(name: str, entry: Any, source: str) -> PlaceTarget:
             raise InvalidInputError(
                 f"{where}.pattern must be a mapping with keys among {_PATTERN_KEYS}, got {p!r}"
             )
-        counts = {}
+        counts: dict[str, int] = {}
         for key in ("rows", "cols", "layers"):
             if key in p and (isinstance(p[key], bool) or not isinstance(p[key], int)):
                 raise InvalidInputError(f"{where}.pattern.{key} must be an integer, got {p[key]!r}")
             if key in p:
                 counts[key] = p[key]
+        default = PalletPattern()
         pattern = PalletPattern(
-            **counts,
-            **({"gap_m": _number(p["gap_m"], f"{where}.pattern.gap_m")} if "gap_m" in p else {}),
-            **({"interlock": bool(p["interlock"])} if "interlock" in p else {}),
+            rows=counts.get("rows", default.rows),
+            cols=counts.get("cols", default.cols),
+            layers=counts.get("layers", default.layers),
+            gap_m=_number(p["gap_m"], f"{where}.pattern.gap_m") if "gap_m" in p else default.gap_m,
+            interlock=bool(p["interlock"]) if "interlock" in p else default.interlock,
         )
     kind = entry.get("kind")
     if pattern is not None and kind != "pallet":
         raise InvalidInputError(f"{where}: a pattern is for kind: pallet, not {kind!r}")
+    if not isinstance(kind, str):
+        raise InvalidInputError(f"{where}.kind must be one of {', '.join(PLACE_KINDS)}, got {kind!r}")
     return PlaceTarget(
         kind,
         _pose(entry, where, source),

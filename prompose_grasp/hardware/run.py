@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike
 
 from prompose_grasp.errors import InvalidInputError, UnknownNameError
 from prompose_grasp.grasp import get_gripper
-from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry
+from prompose_grasp.grasp.grippers import GripperGeometry, ParallelJawGeometry, SuctionCupGeometry
 from prompose_grasp.hardware.calibration import load_calibration
 from prompose_grasp.hardware.cameras import (
     AzureKinectCamera,
@@ -227,13 +227,19 @@ class RecordingGripper(Gripper):
 class DryRunGripper(Gripper):
     """A gripper for dry runs: nothing is sent, and every close is assumed to hold the object.
 
-    `width()` after a close reports `held_width_m` (jaws stopped on something of that width; 0 for suction).
+    `width()` reports the gripper's stroke while open and `held_width_m` after a close (jaws stopped on
+    something that wide; by default half the stroke). A suction cup has no jaws: its stroke is 0 m, and so is
+    every width it reports.
     """
 
-    def __init__(self, kind: str, max_width_m: float, held_width_m: float):
-        self.kind = kind
-        self.max_width_m = float(max_width_m)
-        self.held_width_m = float(held_width_m)
+    def __init__(self, geometry: GripperGeometry, held_width_m: float | None = None):
+        if not isinstance(geometry, (ParallelJawGeometry, SuctionCupGeometry)):
+            raise InvalidInputError(
+                f"geometry must be a ParallelJawGeometry or SuctionCupGeometry, got {type(geometry).__name__}"
+            )
+        self.geometry = geometry
+        self.max_width_m = float(geometry.stroke_m)
+        self.held_width_m = 0.5 * self.max_width_m if held_width_m is None else float(held_width_m)
         self._holding = False
 
     def open(self) -> None:
@@ -253,8 +259,6 @@ class DryRunGripper(Gripper):
 
     def width(self) -> float:
         self._require()
-        if self.kind == "suction":
-            return 0.0
         return self.held_width_m if self._holding else self.max_width_m
 
 
@@ -310,8 +314,7 @@ def build_hardware_cell(config: HardwareCellConfig) -> Cell:
     spec = config.spec
     calibration = load_calibration(spec.calibration)
     place_targets = load_place_targets(spec.places) if spec.places is not None else {}
-    kind = GRIPPERS[spec.gripper]
-    geometry = get_gripper(kind)
+    geometry = get_gripper(GRIPPERS[spec.gripper])
     robot = config.robot_model or load_robot(spec.robot, tcp_offset=geometry.T_flange_tcp)
     log: list[str] = []
     if spec.dry_run:
@@ -319,8 +322,7 @@ def build_hardware_cell(config: HardwareCellConfig) -> Cell:
         if q_start is None:
             q_start = _current_q(spec.host, config.links) if spec.host else HOME_Q
         inner_arm: Arm = FakeArm(robot, q_initial=q_start)
-        max_w = geometry.stroke_m if isinstance(geometry, ParallelJawGeometry) else 0.0
-        inner_gripper: Gripper = DryRunGripper(kind, max_w, held_width_m=0.5 * max_w)
+        inner_gripper: Gripper = DryRunGripper(geometry)
     else:
         assert spec.host is not None
         suction = isinstance(geometry, SuctionCupGeometry)

@@ -26,6 +26,11 @@ The three ur_rtde interfaces are opened through an `RtdeLinks` factory, the boun
 `RuntimeError("... Could not connect to: HOST at 30004 ...")` at once when nothing listens; e-Series arms
 accept the control script only in Remote Control mode; `RTDEReceiveInterface` keeps answering the last state
 after its link drops, so the arm checks `isConnected()` rather than trusting the values.
+
+This module stays one file although it is longer than the others: it is one adapter class around one SDK.
+Its parts (the link protocols the tests replace, the config, the move / watch / stop paths of `URRtdeArm`)
+share the arm's link state and its stop path, and a reader checking what reaches the controller wants them
+side by side.
 """
 
 from __future__ import annotations

@@ -9,7 +9,6 @@ import numpy as np
 
 from prompose_grasp.errors import NoFeasibleMotion, NoFeasiblePlace, UnsafeCommandError
 from prompose_grasp.geometry.pose9d import Pose9D
-from prompose_grasp.geometry.se3 import invert_T
 from prompose_grasp.grasp import (
     ObjectModel,
     PlaceConfig,
@@ -18,7 +17,7 @@ from prompose_grasp.grasp import (
     plan_pick_place,
     plan_place,
 )
-from prompose_grasp.grasp.motion import MotionConfig, free_move, timed_trajectory
+from prompose_grasp.grasp.motion import GripperAction, MotionConfig, free_move, timed_trajectory
 from prompose_grasp.grasp.scene import CollisionScene
 from prompose_grasp.grasp.types import Grasp
 from prompose_grasp.pipeline.command import Command
@@ -52,10 +51,7 @@ def pick(loop: Loop, run: RunRecord, grasp: Grasp, scene: CollisionScene) -> flo
         if hit is not None:
             # The direct joint line collides: the grasp layer's detour (up, across, down), as for a place.
             try:
-                W = free_move(
-                    loop.robot, scene, q_now, ik.q, grip, grasp.opening_m, None, None, MotionConfig(),
-                    invert_T(grip.T_flange_tcp), False,
-                )  # fmt: skip
+                W = free_move(loop.robot, scene, q_now, ik.q, gripper=grip, opening_m=grasp.opening_m)
             except NoFeasibleMotion:
                 raise Abort("collision", f"path to the pre-grasp hits {hit.name}: {hit.reason}") from None
         detour = timed_trajectory(loop.robot, W, MotionConfig()) if len(W) > 2 else None
@@ -145,10 +141,10 @@ def pick_place(
             loop.emit("place" if seg.holding else "execute", f"segment {seg.name}", 0.5, attempt)
             moving_closed(run)
             safe(seg.name, functools.partial(loop.arm.follow, seg.trajectory))
-            if seg.name == "approach":
+            if seg.gripper_after is GripperAction.CLOSE:
                 close_jaws(loop, run)
-            elif seg.name == "descend":
-                if not loop.gripper.grasp_detected():
+            elif seg.gripper_after is GripperAction.OPEN:
+                if seg.holding and not loop.gripper.grasp_detected():  # let go of what is no longer held
                     open_jaws(loop, run)
                     raise Abort("slipped", "the object was lost during the transfer")
                 open_for(loop, run, grasp)

@@ -19,7 +19,7 @@ import numpy as np
 from prompose_grasp.errors import AmbiguousObjectError, CameraError, InvalidInputError, ObjectNotFoundError
 from prompose_grasp.geometry.se3 import transform_points
 from prompose_grasp.grasp import ObjectModel, Plane
-from prompose_grasp.grasp.planner import robot_pixel_mask, robot_self_capsules
+from prompose_grasp.grasp.self_filter import robot_pixel_mask, robot_self_capsules
 from prompose_grasp.pipeline.describe import describe_contenders
 from prompose_grasp.pipeline.loop import Loop
 from prompose_grasp.pipeline.record import Abort, RunRecord

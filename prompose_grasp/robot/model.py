@@ -115,7 +115,8 @@ class RobotModel:
         )
 
     # ------------------------------------------------------------------ forward kinematics
-    def _q(self, q: ArrayLike, name: str = "q") -> np.ndarray:
+    def check_q(self, q: ArrayLike, name: str = "q") -> np.ndarray:
+        """`q` as a finite (6,) float64 joint vector [rad]; `InvalidInputError` naming `name` otherwise."""
         try:
             q = np.asarray(q, dtype=np.float64)
         except (TypeError, ValueError):
@@ -129,7 +130,7 @@ class RobotModel:
 
     def fk(self, q: ArrayLike) -> np.ndarray:
         """(4, 4) T_base_flange at q (6,) [rad] (closed-form DH)."""
-        return fk(self.spec, self._q(q))
+        return fk(self.spec, self.check_q(q))
 
     def fk_tcp(self, q: ArrayLike) -> np.ndarray:
         """(4, 4) T_base_tcp at q (6,) [rad]."""
@@ -145,7 +146,7 @@ class RobotModel:
 
         model, data = self.pin_model, self._pin_data
         fid = model.getFrameId(_check_frame(frame))
-        pin.forwardKinematics(model, data, self._q(q))
+        pin.forwardKinematics(model, data, self.check_q(q))
         return pin.updateFramePlacement(model, data, fid).homogeneous.copy()
 
     def fk_mujoco(self, q: ArrayLike, frame: Frame = "flange") -> np.ndarray:
@@ -154,7 +155,7 @@ class RobotModel:
 
         model = self.mj_model
         data = mujoco.MjData(model)
-        data.qpos[:] = self._q(q)
+        data.qpos[:] = self.check_q(q)
         mujoco.mj_kinematics(model, data)
         sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, _check_frame(frame))
         T = np.eye(4)
@@ -164,7 +165,7 @@ class RobotModel:
 
     def link_frames(self, q: ArrayLike) -> np.ndarray:
         """(8, 4, 4) poses in `base` of the URDF link frames base, shoulder_link .. wrist_3_link, flange."""
-        q = self._q(q)
+        q = self.check_q(q)
         dh = fk_frames(self.spec, q)
         out = np.empty((8, 4, 4))
         out[0] = dh[0]
@@ -212,7 +213,7 @@ class RobotModel:
 
         model, data = self.pin_model, self._pin_data
         fid = model.getFrameId(_check_frame(frame))
-        return pin.computeFrameJacobian(model, data, self._q(q), fid, pin.LOCAL_WORLD_ALIGNED).copy()
+        return pin.computeFrameJacobian(model, data, self.check_q(q), fid, pin.LOCAL_WORLD_ALIGNED).copy()
 
     # ------------------------------------------------------------------ inverse kinematics
     def _target_flange(self, T_base_target: ArrayLike, frame: str) -> np.ndarray:
@@ -242,7 +243,7 @@ class RobotModel:
         """
         t0 = time.perf_counter()
         _ik.check_method(method)
-        seed = np.zeros(6) if q_seed is None else self._q(q_seed, "q_seed")
+        seed = np.zeros(6) if q_seed is None else self.check_q(q_seed, "q_seed")
         solve = _ik.IKProblem(self, self._target_flange(T_base_target, frame), seed, config or self.ik_config)
         if method == "closed_form":
             result = _ik.solve_closed_form(solve)
@@ -262,7 +263,7 @@ class RobotModel:
         """(M, 6) every closed-form solution within the joint limits, nearest `q_seed` first (M = 0: none).
 
         Each branch appears once, as its representative nearest the seed."""
-        seed = np.zeros(6) if q_seed is None else self._q(q_seed, "q_seed")
+        seed = np.zeros(6) if q_seed is None else self.check_q(q_seed, "q_seed")
         T = self._target_flange(T_base_target, frame)
         branches = ik_branches(self.spec, T, q6_if_singular=float(seed[5]))
         return nearest_in_limits(branches, seed, self._lower, self._upper)

@@ -163,7 +163,7 @@ def linear_trajectory(
     """
     import mink
 
-    q0 = robot._q(q_start, "q_start")
+    q0 = robot.check_q(q_start, "q_start")
     T_goal = as_transform(T_base_goal, "T_base_goal")
     speed, accel, dt_s = (
         _positive(x, n) for x, n in ((speed_m_s, "speed_m_s"), (accel_m_s2, "accel_m_s2"), (dt_s, "dt_s"))

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from prompose_grasp.grasp import ik_branches_batch, ik_nearest_batch
+from prompose_grasp.grasp.batch_ik import FK_REACH_TOL, branch_order, fk_reaches
 from prompose_grasp.robot import load_robot
 from prompose_grasp.robot.kinematics import fk_batch, ik_branches
 
@@ -68,3 +69,27 @@ def test_targets_turned_about_the_flange_axis_share_their_branches_exactly():
     for i in range(len(T)):
         np.testing.assert_allclose(q[i], robot.ik_all(T[i], seed, frame="flange")[0], atol=1e-9)  # rounding
         np.testing.assert_allclose(robot.fk(q[i]), T[i], atol=1e-12)  # exact solutions
+
+
+def test_branch_order_and_fk_reaches():
+    """Every branch `branch_order` lists reaches the target by forward kinematics, the picked one first and
+    none twice; a pose moved by 10 x the tolerance is not reached."""
+    robot = load_robot("ur5e")
+    rng = np.random.default_rng(5)
+    lower, upper = robot.joint_limits
+    T = fk_batch(robot.spec, robot.random_configurations(rng, 20))
+    q, ok, branches = ik_nearest_batch(robot.spec, T, np.zeros(6), lower, upper)
+    for i in np.flatnonzero(ok):
+        order = branch_order(q[i], branches[i])
+        np.testing.assert_array_equal(order[0], q[i])
+        assert len(order) == 1 + sum(
+            bool(np.all(np.isfinite(b)) and np.max(np.abs(b - q[i])) > 1e-9) for b in branches[i]
+        )
+        # The unpicked branches are unverified by `ik_nearest_batch`, but closed-form solutions of an
+        # in-range pose reach it exactly (~1e-15 m).
+        assert np.all(
+            fk_reaches(fk_batch(robot.spec, np.array(order)), np.broadcast_to(T[i], (len(order), 4, 4)))
+        )
+        moved = T[i].copy()
+        moved[0, 3] += 10 * FK_REACH_TOL
+        assert not fk_reaches(robot.fk(q[i]), moved)

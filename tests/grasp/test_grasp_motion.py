@@ -12,6 +12,7 @@ from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.se3 import make_T
 from prompose_grasp.grasp import (
     CollisionScene,
+    GripperAction,
     MotionConfig,
     ObjectModel,
     PalletPattern,
@@ -63,6 +64,17 @@ def test_segments_in_order_within_limits_and_clear_of_the_wall(wall_motion):
         "descend",
         "retreat",
     ]
+    # The gripper closes once the approach ends and opens once the descent to the place pose ends; it
+    # holds the object over exactly the segments in between.
+    assert [s.gripper_after for s in motion.segments] == [
+        GripperAction.NONE,
+        GripperAction.CLOSE,
+        GripperAction.NONE,
+        GripperAction.NONE,
+        GripperAction.OPEN,
+        GripperAction.NONE,
+    ]
+    assert [s.holding for s in motion.segments] == [False, False, True, True, True, False]
     lower, upper = ROBOT.joint_limits
     wall_grown = Pose9D(wall.pose.R, wall.pose.t, wall.pose.size)
     for seg in motion.segments:

@@ -181,7 +181,7 @@ def test_batched_arm_check_agrees_with_the_single_one():
 
 
 def test_segment_box_distance_matches_dense_sampling():
-    from prompose_grasp.grasp.scene import _segment_box_distance
+    from prompose_grasp.geometry.distance import segment_box_distance
 
     rng = np.random.default_rng(12)
     n = 300
@@ -192,7 +192,7 @@ def test_segment_box_distance_matches_dense_sampling():
     R[20:40] = np.eye(3)  # axis-aligned boxes
     p1[20:40, 1] = p0[20:40, 1]  # segments parallel to a face
     h = rng.uniform(0.01, 0.1, (n, 3))
-    d = _segment_box_distance(p0, p1, c, R, h)
+    d = segment_box_distance(p0, p1, c, R, h)
     t = np.linspace(0.0, 1.0, 4001)
     for i in range(n):
         local = (p0[i] + t[:, None] * (p1[i] - p0[i]) - c[i]) @ R[i]

@@ -1,5 +1,5 @@
-"""Robot self-filtering (`grasp.planner.robot_pixel_mask`): the depth pixels within a margin of the robot's
-capsules, against a brute-force distance computed independently (the rendered case: tests/sim)."""
+"""Robot self-filtering (`grasp.self_filter.robot_pixel_mask`): the depth pixels within a margin of the
+robot's capsules, against a brute-force distance computed independently (the rendered case: tests/sim)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import numpy as np
 
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.se3 import make_T
-from prompose_grasp.grasp.planner import robot_pixel_mask
+from prompose_grasp.grasp.self_filter import robot_pixel_mask
 
 
 def _brute_force_distance(P: np.ndarray, p0: np.ndarray, p1: np.ndarray, n: int = 20001) -> np.ndarray:

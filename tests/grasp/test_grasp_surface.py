@@ -8,8 +8,8 @@ import pytest
 from prompose_grasp.errors import InvalidInputError, NoFeasibleGrasp
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.grasp import GraspConfig, ObjectModel, ParallelJawGeometry, Plane, plan_grasps
-from prompose_grasp.grasp.planner import generate_candidates
 from prompose_grasp.grasp.surface import needs_sections, section_grasps
+from prompose_grasp.grasp.synthesis import generate_candidates
 from prompose_grasp.robot import HOME_Q, load_robot
 
 R_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # object +y -> base +z

@@ -21,7 +21,7 @@ from prompose_grasp.grasp import (
     box_grasps,
     suction_grasps,
 )
-from prompose_grasp.grasp.synthesis import rim_grasps
+from prompose_grasp.grasp.parallel_jaw import rim_grasps
 
 R_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # object +y -> base +z
 JAW = ParallelJawGeometry()

@@ -78,6 +78,8 @@ def test_rpy_and_matrix_forms_give_the_same_frame(tmp_path):
         ({"bin": {**BIN, "pos_m": [0.4, float("nan"), 0.0]}}, "finite number"),
         ({"bin": {**BIN, "pos_m": [0.4, 0.0]}}, "list of 3"),
         ({"bin": {**BIN, "kind": "shelf"}}, "kind must be one of"),
+        ({"bin": {k: v for k, v in BIN.items() if k != "kind"}}, "kind must be one of"),
+        ({"bin": {**BIN, "kind": 3}}, "kind must be one of"),
         (
             {
                 "pallet": {

@@ -23,7 +23,7 @@ from prompose_grasp.cli import main
 from prompose_grasp.errors import InvalidInputError, UnknownNameError
 from prompose_grasp.geometry.se3 import T_from_pose_vector, pose_vector_from_T
 from prompose_grasp.grasp import get_gripper
-from prompose_grasp.hardware import CellSpec, run_command, write_intrinsics
+from prompose_grasp.hardware import CellSpec, DryRunGripper, run_command, write_intrinsics
 from prompose_grasp.pipeline import PickConfig
 from prompose_grasp.robot import HOME_Q, load_robot
 
@@ -226,3 +226,20 @@ def test_cli_run_refuses_a_bad_calibration_with_exit_2(tmp_path, capsys):
             "--calibration", str(bad), "--dry-run"]  # fmt: skip
     assert main(argv) == 2
     assert "not a rotation" in capsys.readouterr().err
+
+
+def test_dry_run_gripper_reports_its_geometry_s_widths():
+    """The dry-run gripper's widths follow from the gripper geometry's type: the jaws' stroke while open and
+    half of it once closed on something; a suction cup has no jaws and reports 0 m throughout."""
+    jaws = DryRunGripper(get_gripper("parallel_jaw"))
+    with jaws:
+        assert jaws.width() == get_gripper("parallel_jaw").stroke_m
+        assert jaws.close(50.0) and jaws.grasp_detected()
+        assert jaws.width() == 0.5 * get_gripper("parallel_jaw").stroke_m
+    cup = DryRunGripper(get_gripper("suction"))
+    with cup:
+        assert cup.width() == 0.0
+        assert cup.close(50.0)
+        assert cup.width() == 0.0
+    with pytest.raises(InvalidInputError, match="ParallelJawGeometry or SuctionCupGeometry"):
+        DryRunGripper("suction")

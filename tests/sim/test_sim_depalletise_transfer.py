@@ -99,7 +99,9 @@ def test_the_transfer_keeps_the_carton_above_the_conveyor_body():
     cfg = MotionConfig()
     _, hit = check_path(ROBOT, scene, np.array([q0, q1]), CUP, 0.0, False, held, T_TCP_OBJ, cfg)
     assert hit is not None and hit.name == "place support (held object)"
-    W = free_move(ROBOT, scene, q0, q1, CUP, 0.0, held, T_TCP_OBJ, cfg, invert_T(CUP.T_flange_tcp), True)
+    W = free_move(
+        ROBOT, scene, q0, q1, gripper=CUP, opening_m=0.0, held=held, T_tcp_obj=T_TCP_OBJ, config=cfg
+    )
     assert len(W) > 2  # a detour, not the direct line
     assert np.allclose(W[0], q0) and np.allclose(W[-1], q1)  # default 1e-8: the ends are the inputs
     # 3 mm: the collision check shrinks the carried box by `contact_margin_m` (it rests on its support).

@@ -1,5 +1,5 @@
 """Robot self-filtering on a rendered MuJoCo scene: with the UR5e parked in the front camera's view, the
-arm's pixels are dropped and no object pixel is (`grasp.planner.robot_pixel_mask`)."""
+arm's pixels are dropped and no object pixel is (`grasp.self_filter.robot_pixel_mask`)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from prompose_grasp.grasp import get_gripper
-from prompose_grasp.grasp.planner import robot_pixel_mask, robot_self_capsules
+from prompose_grasp.grasp.self_filter import robot_pixel_mask, robot_self_capsules
 
 SCENE = Path(__file__).resolve().parents[2] / "sim" / "scenes" / "tabletop_household.yaml"
 
