@@ -23,7 +23,7 @@ PYTEST_ARGS ?=
 
 help:
 	@echo "make test    create .venv (first time) and run the test suite"
-	@echo "make lint    ruff + import-linter (layer contracts)"
+	@echo "make lint    ruff + import-linter (layer contracts) + mypy"
 	@echo "make demo    the main job: a MuJoCo language pick-and-place episode into demo_out/"
 
 all: test
@@ -46,6 +46,7 @@ lint: venv
 	$(VENV)/bin/ruff check prompose_grasp sim tests examples
 	$(VENV)/bin/ruff format --check prompose_grasp sim tests examples
 	$(VENV)/bin/lint-imports
+	$(VENV)/bin/mypy prompose_grasp
 
 DEMO_COMMAND ?= pick up the green bottle
 DEMO_OUT ?= demo_out
