@@ -314,6 +314,10 @@ def _add_bench_pick(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--json", dest="json_out", default=None, help="write the report here")
     p.add_argument("--out", default=None, help="also write each episode's summary and overlay under DIR")
+    p.add_argument(
+        "--ray", default=None, metavar="ADDRESS", help="episodes as Ray tasks: local:N | auto | HOST:PORT"
+    )
+    p.add_argument("--resume", action="store_true", help="skip the episodes JSON.sweep.jsonl lists as done")
     p.set_defaults(func=_run_bench_pick)
 
 
@@ -331,7 +335,10 @@ def _run_bench_pick(args: argparse.Namespace) -> int:
     for flag in ("oracle_mask", "real_meshes", "place"):
         if getattr(args, flag):
             cmd.append("--" + flag.replace("_", "-"))
-    for flag, value in (("--prompts", args.prompts), ("--json", args.json_out), ("--out", args.out)):
+    if args.resume:
+        cmd.append("--resume")
+    for flag, value in (("--prompts", args.prompts), ("--json", args.json_out), ("--out", args.out),
+                        ("--ray", args.ray)):  # fmt: skip
         if value:
             cmd += [flag, value]
     return subprocess.call(cmd)
