@@ -502,4 +502,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # run the module's own copy, so that the units Ray pickles name `sim.dataset`, not `__main__`
+    from sim.dataset import main as _main
+
+    sys.exit(_main())

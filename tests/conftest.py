@@ -24,5 +24,7 @@ def ray_local():
     and stopped in `pytest_unconfigure`; skipped without the `cluster` extra."""
     ray = pytest.importorskip("ray", reason="the cluster tests need the `cluster` extra (ray)")
     if not ray.is_initialized():
-        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level="WARNING")
+        from prompose_grasp.eval.sweep import RayExecutor
+
+        RayExecutor("local:2")  # the way `--ray local:2` starts it
     return ray

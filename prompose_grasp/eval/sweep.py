@@ -241,6 +241,20 @@ def parse_ray_address(spec: str) -> dict[str, Any]:
     return {"address": spec}
 
 
+def _library_root() -> str:
+    return str(Path(__file__).resolve().parents[2])
+
+
+def _worker_env(num_cpus: float, roots: Sequence[str]) -> dict[str, str]:
+    """A worker's environment variables: thread pools pinned to `num_cpus`, MuJoCo on EGL, and `roots` (then
+    this process's PYTHONPATH) on the import path."""
+    n = str(max(1, int(num_cpus)))
+    env = {k: n for k in THREAD_ENV_VARS}
+    paths = [*roots, *filter(None, [os.environ.get("PYTHONPATH")])]
+    env.update(MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"), PYTHONPATH=os.pathsep.join(paths))
+    return env
+
+
 def _code_roots(fn: Callable[[Any], Any]) -> list[str]:
     """Folders that make the unit function's module and this library importable on a worker (the
     top-level packages' parents), for the workers' PYTHONPATH."""
@@ -266,10 +280,19 @@ class RayExecutor:
 
         self.ray = require("ray", extra="cluster")
         self.spec = spec
+        #: the environment every worker of this job starts with (None: a cluster this process did not join)
+        self.job_env: dict[str, str] | None = None
         if not self.ray.is_initialized():
             kwargs = parse_ray_address(spec or "auto")
+            # Job-wide worker environment for one-CPU units, so that workers need not be started anew for a
+            # per-task environment (a task whose environment differs still gets its own, `run`).
+            self.job_env = _worker_env(1, [_library_root(), os.getcwd()])
             self.ray.init(
-                **kwargs, include_dashboard=False, log_to_driver=False, logging_level=logging.WARNING
+                **kwargs,
+                runtime_env={"env_vars": self.job_env},
+                include_dashboard=False,
+                log_to_driver=False,
+                logging_level=logging.WARNING,
             )
 
     def describe(self) -> str:
@@ -282,13 +305,15 @@ class RayExecutor:
 
     def run(self, fn, units, num_cpus, retries, on_running):
         ray = self.ray
-        n = str(max(1, int(num_cpus)))
-        env = {k: n for k in THREAD_ENV_VARS}
-        paths = [*_code_roots(fn), *filter(None, [os.environ.get("PYTHONPATH")])]
-        env.update(MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"), PYTHONPATH=os.pathsep.join(paths))
+        options: dict[str, Any] = {}
+        job = self.job_env
+        roots = _code_roots(fn)
+        known = set(job["PYTHONPATH"].split(os.pathsep)) if job is not None else set()
+        if job is None or max(1, int(num_cpus)) != int(job["OMP_NUM_THREADS"]) or not set(roots) <= known:
+            options["runtime_env"] = {"env_vars": _worker_env(num_cpus, roots)}
         # Retries by the driver (max_retries=0 for Ray itself), so each unit's attempts are counted here.
         task = ray.remote(_call_unit).options(
-            num_cpus=num_cpus, max_retries=0, retry_exceptions=False, runtime_env={"env_vars": env}
+            num_cpus=num_cpus, max_retries=0, retry_exceptions=False, **options
         )
         fn_ref = ray.put(fn)
         todo = list(units)[::-1]  # popped from the end: submitted in the units' order
