@@ -204,7 +204,14 @@ class SequentialExecutor:
     def slots(self, num_cpus: float) -> int:
         return 1
 
-    def run(self, fn, units, num_cpus, retries, on_running):
+    def run(
+        self,
+        fn: Callable[[Any], Any],
+        units: Sequence[Unit],
+        num_cpus: float,
+        retries: int,
+        on_running: Callable[[int], None],
+    ) -> Iterator[_Outcome]:
         for unit in units:
             on_running(1)
             for attempt in range(1, retries + 2):
@@ -303,7 +310,14 @@ class RayExecutor:
         cpus = float(self.ray.cluster_resources().get("CPU", 1))
         return max(1, int(cpus // max(num_cpus, 1e-3)))
 
-    def run(self, fn, units, num_cpus, retries, on_running):
+    def run(
+        self,
+        fn: Callable[[Any], Any],
+        units: Sequence[Unit],
+        num_cpus: float,
+        retries: int,
+        on_running: Callable[[int], None],
+    ) -> Iterator[_Outcome]:
         ray = self.ray
         options: dict[str, Any] = {}
         job = self.job_env

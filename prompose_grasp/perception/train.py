@@ -236,7 +236,7 @@ def train_on_tracks(
         log.info("resuming from %s at step %d", ckpt_path, start)
     elif main_rank and (out / LOG_NAME).exists():
         (out / LOG_NAME).unlink()  # a fresh run does not append to an old run's log
-    net = model
+    net: torch.nn.Module = model
     if ctx is not None:
         from torch.nn.parallel import DistributedDataParallel
 

@@ -6,6 +6,9 @@ redoing finished units."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 from sweep_units import always_dies_unit, dies_once_unit, raising_unit, seeded_unit, threads_unit
@@ -97,3 +100,13 @@ def test_interrupted_sweep_resumes_without_rerunning(tmp_path):
     full = run_sweep(seeded_unit, units, progress=False)
     assert json.dumps(again.results) == json.dumps(full.results)
     assert {k: first.results[k] for k in first.results} == {k: again.results[k] for k in first.results}
+
+
+def test_without_ray_nothing_imports_it():
+    # a fresh interpreter: the sequential sweep and the entry points' modules leave Ray unimported
+    code = (
+        "import sys; from prompose_grasp.eval.sweep import Unit, run_sweep; "
+        "import sim.dataset, sim.bench_pick, prompose_grasp.eval.bench_estimator; "
+        "run_sweep(len, [Unit('a', 'xy')], progress=False); assert 'ray' not in sys.modules, 'ray imported'"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).resolve().parents[2])
