@@ -241,7 +241,9 @@ def train_on_tracks(
         from torch.nn.parallel import DistributedDataParallel
 
         ids = [ctx.device.index] if ctx.device.type == "cuda" else None
-        net = DistributedDataParallel(model, device_ids=ids)
+        # no_temporal leaves the temporal position embedding out of the forward pass (checked for every
+        # ablation): DDP must not wait for its gradient
+        net = DistributedDataParallel(model, device_ids=ids, find_unused_parameters=config.temporal is False)
 
     end = tc.steps if stop_at is None else max(min(int(stop_at), tc.steps), start)
     windows = make_windows(train_tracks, config.window, stride=1)
