@@ -555,7 +555,9 @@ def run_benchmark(
     ]  # fmt: skip
     if ray is not None or executor is not None or resume:
         return _run_sweep(specs, meta, json_out, progress, ray, resume, retries, executor)
-    estimator = _process_estimator()
+    from prompose_grasp.perception.estimator import ProMPose
+
+    estimator = ProMPose.default()  # one per run, as before the sweep existed
     rows = []
     t_all = time.perf_counter()
     for i, spec in enumerate(specs):
