@@ -171,6 +171,10 @@ def _run_bench(args: argparse.Namespace) -> int:
     methods = parse_methods(args.methods)  # a bad name fails before the estimator loads
     if args.resume and not args.json_out:
         raise InvalidInputError("--resume needs --json OUT: the finished scenes are kept in OUT.sweep.jsonl")
+    if args.ray is not None:
+        from prompose_grasp.eval.sweep import parse_ray_address
+
+        parse_ray_address(args.ray)
     resume_file = None
     if args.json_out and (args.ray or args.resume):
         out = Path(args.json_out)

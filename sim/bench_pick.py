@@ -730,6 +730,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_from_args(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    if getattr(args, "ray", None) is not None:
+        from prompose_grasp.eval.sweep import parse_ray_address
+
+        parse_ray_address(args.ray)  # a bad --ray fails before any episode
+    if getattr(args, "retries", 0) < 0:
+        raise InvalidInputError(f"--retries must be >= 0, got {args.retries}")
+    if getattr(args, "resume", False) and not args.json_out:
+        raise InvalidInputError(
+            "--resume needs --json OUT: the finished episodes are kept in OUT.sweep.jsonl"
+        )
     report = run_benchmark(
         args.scenario,
         args.episodes,

@@ -459,6 +459,15 @@ def _generate_sweep(jobs, out: Path, progress: bool, ray, resume: bool, retries:
     }
 
 
+def _check_sweep_args(ray: str | None, retries: int) -> None:
+    if ray is not None:
+        from prompose_grasp.eval.sweep import parse_ray_address
+
+        parse_ray_address(ray)
+    if retries < 0:
+        raise InvalidInputError(f"--retries must be >= 0, got {retries}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m sim.dataset", description=__doc__.splitlines()[0])
     parser.add_argument("--out", required=True, help="output folder")
@@ -485,6 +494,7 @@ def main(argv: list[str] | None = None) -> int:
             out=args.out, scenes=args.scenes, frames=args.frames, seed=args.seed, width=args.width,
             height=args.height, fovy_deg=args.fovy_deg, noise=args.noise, workers=args.workers,
         )  # fmt: skip
+        _check_sweep_args(args.ray, args.retries)  # before anything is written
         stats = generate(
             config, progress=not args.no_progress, ray=args.ray, resume=args.resume, retries=args.retries
         )

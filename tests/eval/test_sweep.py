@@ -110,3 +110,16 @@ def test_without_ray_nothing_imports_it():
         "run_sweep(len, [Unit('a', 'xy')], progress=False); assert 'ray' not in sys.modules, 'ray imported'"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).resolve().parents[2])
+
+
+def test_bad_ray_values_fail_before_any_work(tmp_path, capsys):
+    from prompose_grasp.cli import main as cli_main
+    from sim.dataset import main as dataset_main
+
+    out = tmp_path / "never"
+    assert dataset_main(["--out", str(out), "--ray", "local:x"]) == 2
+    assert not out.exists()  # not even split.json
+    assert dataset_main(["--out", str(out), "--ray", "local:1", "--retries", "-1"]) == 2
+    assert cli_main(["bench", "--data", str(tmp_path), "--ray", ""]) == 2
+    assert cli_main(["bench", "--data", str(tmp_path), "--resume"]) == 2  # no --json to keep scenes in
+    assert "--ray" in capsys.readouterr().err
