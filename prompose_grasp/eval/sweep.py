@@ -1,7 +1,7 @@
 """Fan-out of independent units of work (a dataset scene, a bench episode, a scene of frames) over one
 process or a Ray cluster, with results identical to a sequential run.
 
-    sweep = run_sweep(generate_one, [Unit("scene_00000", (0, config)), ...],
+    sweep = run_sweep(scene_unit, [Unit("scene_00000", (0, config, False)), ...],   # sim.dataset's unit
                       executor=make_executor("local:2"), resume_file=out / "sweep.jsonl", resume=True)
     sweep.results["scene_00000"]          # the unit's result (JSON value), or
     sweep.failures["scene_00003"]         # its UnitFailure after the retries
