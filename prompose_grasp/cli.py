@@ -185,6 +185,16 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
         "ours_tracked, ours_tracked_oracle_mask; the others are left out of the report",
     )
     p.add_argument("--json", dest="json_out", default=None, help="also write the full report here")
+    p.add_argument(
+        "--ray",
+        default=None,
+        metavar="ADDRESS",
+        help="run each scene as a Ray task: local:N (a local cluster of N CPUs), auto (the cluster of "
+        "`ray start`), or HOST:PORT (extra `cluster`; docs/scale.md)",
+    )
+    p.add_argument(
+        "--resume", action="store_true", help="skip the scenes JSON.sweep.jsonl lists as done (needs --json)"
+    )
     p.set_defaults(func=_run_bench)
 
 
@@ -196,7 +206,24 @@ def _run_bench(args: argparse.Namespace) -> int:
     _check_at_least(args.max_frames, "--max-frames", 1)
     _check_at_least(args.candidates, "--candidates", 1)
     methods = parse_methods(args.methods)  # a bad name fails before the estimator loads
-    report = run_estimator_benchmark(args.data, args.split, args.max_frames, args.candidates, methods=methods)
+    if args.resume and not args.json_out:
+        raise InvalidInputError("--resume needs --json OUT: the finished scenes are kept in OUT.sweep.jsonl")
+    if args.ray is not None:
+        from prompose_grasp.eval.sweep import parse_ray_address
+
+        parse_ray_address(args.ray)
+    resume_file = None
+    if args.json_out and (args.ray or args.resume):
+        out = Path(args.json_out)
+        resume_file = out.with_name(out.stem + ".sweep.jsonl")
+    report = run_estimator_benchmark(
+        args.data, args.split, args.max_frames, args.candidates, methods=methods,
+        ray=args.ray, resume=args.resume, resume_file=resume_file,
+    )  # fmt: skip
+    for row in report.get("failed_scenes", []):
+        print(
+            f"FAILED scene {row['unit']}: {row['error']} after {row['attempts']} attempts: {row['message']}"
+        )
     print(format_report(report))
     if args.json_out:
         write_report_json(report, args.json_out)
@@ -361,6 +388,10 @@ def _add_bench_pick(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--json", dest="json_out", default=None, help="write the report here")
     p.add_argument("--out", default=None, help="also write each episode's summary and overlay under DIR")
+    p.add_argument(
+        "--ray", default=None, metavar="ADDRESS", help="episodes as Ray tasks: local:N | auto | HOST:PORT"
+    )
+    p.add_argument("--resume", action="store_true", help="skip the episodes JSON.sweep.jsonl lists as done")
     p.set_defaults(func=_run_bench_pick)
 
 
@@ -378,7 +409,10 @@ def _run_bench_pick(args: argparse.Namespace) -> int:
     for flag in ("oracle_mask", "real_meshes", "place"):
         if getattr(args, flag):
             cmd.append("--" + flag.replace("_", "-"))
-    for flag, value in (("--prompts", args.prompts), ("--json", args.json_out), ("--out", args.out)):
+    if args.resume:
+        cmd.append("--resume")
+    for flag, value in (("--prompts", args.prompts), ("--json", args.json_out), ("--out", args.out),
+                        ("--ray", args.ray)):  # fmt: skip
         if value:
             cmd += [flag, value]
     return subprocess.call(cmd)

@@ -35,6 +35,12 @@ named one); `false_success` (the loop reported success, nothing was lifted / pla
 `wrong_object` (the loop caught holding another object and put it back); every other `PickOutcome` reason;
 `crash:<exception>` (an unexpected exception). Each row names the target object, the objects the words fit
 and every scene object (name, kind, colour, size).
+
+`--ray local:N|auto|HOST:PORT` runs each episode as a Ray task of one CPU (`prompose_grasp.eval.sweep`,
+extra `cluster`; docs/scale.md); each worker process builds its own estimator once. The rows are those of a
+sequential run apart from their wall times (`deterministic_view`); an episode whose worker died after its
+retries is a `crash:worker_died` row. With `--json OUT`, OUT.sweep.jsonl records each finished episode and
+`--resume` skips them.
 """
 
 from __future__ import annotations
@@ -68,11 +74,15 @@ __all__ = [
     "PROMPT_STYLES",
     "SCENARIOS",
     "EpisodePlan",
+    "EpisodeSpec",
     "OracleMaskEstimator",
+    "deterministic_view",
+    "episode_unit",
     "format_report",
     "real_mesh_plan",
     "real_mesh_scene",
     "run_benchmark",
+    "run_episode_row",
     "summarise",
 ]
 
@@ -333,6 +343,170 @@ def _scene_objects(plan: EpisodePlan, evaluated: list[dict[str, Any]] | None) ->
     return out
 
 
+#: Row and report fields that measure the run rather than the episodes (wall-clock times, which differ between
+#: any two runs, sequential or not; what executed it); every other field is a function of the episodes'
+#: seeds (`deterministic_view`).
+ROW_TIMING_KEYS = ("wall_time_s", "timings_s")
+REPORT_TIMING_KEYS = ("total_wall_s", "mean_cycle_wall_s", "realtime_factor", "executor")
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """One episode as a sweep unit: everything it needs, so a worker process runs it from this alone."""
+
+    scenario: str
+    seed: int
+    place: bool
+    real_meshes: bool
+    prompts: str
+    oracle_mask: bool
+    out_dir: str | None = None
+
+
+#: This process's estimator, built on its first episode and reused (as a sequential run reuses its one).
+_ESTIMATOR: list[Any] = []
+
+
+def _process_estimator() -> Any:
+    if not _ESTIMATOR:
+        from prompose_grasp.perception.estimator import ProMPose
+
+        _ESTIMATOR.append(ProMPose.default())
+    return _ESTIMATOR[0]
+
+
+def run_episode_row(spec: EpisodeSpec, estimator: Any = None) -> dict[str, Any]:
+    """Run one seeded episode and account it (`sim.bench_accounting.judge`): its report row. An unexpected
+    exception becomes a `crash:<type>` row. The row depends on `spec` alone (the episode draws from its
+    seed)."""
+    from sim.pick import run_episode
+
+    estimator = estimator if estimator is not None else _process_estimator()
+    seed = spec.seed
+    plan = _episode_plan(spec.scenario, seed, spec.place, spec.real_meshes, spec.prompts)
+    command = plan.command
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {"seed": seed, "command": command, "prompts": spec.prompts}
+    if plan.lookalike_kind is not None:
+        row["lookalike_kind"] = plan.lookalike_kind
+    row.update(
+        target_object=plan.target_object,
+        fitting_objects=plan.fitting_objects,
+        scene_objects=_scene_objects(plan, None),
+    )
+    try:
+        wrap = None
+        if spec.oracle_mask:
+            oracle_target = plan.target_object or (plan.fitting_objects or [None])[0]
+
+            def wrap(world, camera, _command=command, _target=oracle_target):
+                from sim.pick import target_name_for
+
+                name = _target or target_name_for(world, _command)
+                return OracleMaskEstimator(estimator, world, camera, name)
+
+        ep_out = None if spec.out_dir is None else Path(spec.out_dir) / f"episode_{seed:04d}"
+        targets = plan.fitting_objects or None
+        result = run_episode(
+            plan.scene,
+            command,
+            ep_out,
+            seed=seed,
+            estimator=estimator,
+            estimator_wrapper=wrap,
+            targets=targets,
+        )
+        s = result.summary
+        ev = s["evaluation"]
+        scene_objects = _scene_objects(plan, ev.get("scene_objects"))
+        fitting = (
+            plan.fitting_objects
+            if plan.fitting_objects is not None
+            else fitting_objects(command, scene_objects)
+        )
+        loop_reason = s["outcome"]["reason"]
+        parsed = s["outcome"].get("command") or {}
+        verdict = judge(
+            loop_reason,
+            bool(s["success"]),
+            fitting,
+            ev.get("lifted_objects", []),
+            ev.get("placed_objects"),
+            place=parsed.get("action", "pick") in ("place", "stack"),
+        )
+        row.update(
+            success=verdict["success"],
+            reason=verdict["reason"],
+            loop_reason=loop_reason,
+            ambiguous=verdict["ambiguous"],
+            wrong_objects=verdict["wrong_objects"],
+            fitting_objects=fitting,
+            scene_objects=scene_objects,
+            message=s["outcome"]["message"],
+            object=ev["object"],
+            lifted_objects=ev.get("lifted_objects"),
+            placed_objects=ev.get("placed_objects"),
+            lift_height_m=s["lift_height_m"],
+            inside_target=ev.get("inside_target"),
+            sim_time_s=s["sim_time_s"],
+            wall_time_s=s["timings_s"]["episode_wall"],
+            timings_s=s["timings_s"],
+            attempts=len(s["outcome"]["attempts"]),
+            attempt_results=[
+                f"{a['method']}: {a['result']} ({a['message']})" for a in s["outcome"]["attempts"]
+            ],
+            moved=ev.get("moved"),
+            estimate_centre_error_m=s.get("estimate_centre_error_m"),
+            estimate_size_m=None if s["estimate"] is None else s["estimate"]["size"],
+            ground_truth_size_m=None if s["ground_truth"] is None else s["ground_truth"]["size"],
+        )
+    except Exception as exc:
+        log.exception("episode seed %d crashed", seed)
+        row.update(
+            success=False,
+            reason=f"crash:{type(exc).__name__}",
+            loop_reason=None,
+            ambiguous=None,
+            message=str(exc)[:300],
+            sim_time_s=float("nan"),
+            wall_time_s=time.perf_counter() - t0,
+        )
+    return row
+
+
+def episode_unit(spec: EpisodeSpec) -> dict[str, Any]:
+    """`run_episode_row` as a sweep unit (`prompose_grasp.eval.sweep`), with this process's estimator."""
+    return run_episode_row(spec)
+
+
+def failure_row(spec: EpisodeSpec, failure: Any) -> dict[str, Any]:
+    """The row of an episode whose unit failed after its retries (`sweep.UnitFailure`: its worker died, or
+    something outside the episode raised): a `crash:<error>` row, counted as a failure."""
+    plan = _episode_plan(spec.scenario, spec.seed, spec.place, spec.real_meshes, spec.prompts)
+    return {
+        "seed": spec.seed,
+        "command": plan.command,
+        "prompts": spec.prompts,
+        "target_object": plan.target_object,
+        "fitting_objects": plan.fitting_objects,
+        "success": False,
+        "reason": f"crash:{failure.error}",
+        "loop_reason": None,
+        "ambiguous": None,
+        "message": failure.message,
+        "sim_time_s": float("nan"),
+        "unit_attempts": failure.attempts,
+    }
+
+
+def deterministic_view(report: dict[str, Any]) -> dict[str, Any]:
+    """The report without its wall-clock fields (`ROW_TIMING_KEYS`, `REPORT_TIMING_KEYS`): what two runs of
+    the same seeds agree on, whatever ran them."""
+    out = {k: v for k, v in report.items() if k not in REPORT_TIMING_KEYS and k != "rows"}
+    out["rows"] = [{k: v for k, v in r.items() if k not in ROW_TIMING_KEYS} for r in report.get("rows", [])]
+    return out
+
+
 def run_benchmark(
     scenario: str,
     episodes: int,
@@ -344,23 +518,24 @@ def run_benchmark(
     progress: bool = True,
     json_out: str | Path | None = None,
     prompts: str | None = None,
+    ray: str | None = None,
+    resume: bool = False,
+    retries: int = 2,
+    executor: Any = None,
 ) -> dict[str, Any]:
     """Run `episodes` seeded episodes (seeds seed0 .. seed0 + episodes - 1) and summarise them; with
     `json_out` the report so far is rewritten after every episode (a long run can be stopped).
 
     `prompts`: "colour+name" (default; "pick up the red banana") or "name" (the bare object name, "pick up
-    the banana"; the scene keeps its colours); `lookalikes` always says the product's name."""
-    from prompose_grasp.perception.estimator import ProMPose
-    from sim.pick import run_episode
+    the banana"; the scene keeps its colours); `lookalikes` always says the product's name.
 
+    `ray` (a `--ray` value), `executor` (a `prompose_grasp.eval.sweep` executor) or `resume` run the
+    episodes as sweep units (`_run_sweep`); the rows are the same as this process's loop gives."""
     if episodes < 1:
         raise InvalidInputError(f"episodes must be >= 1, got {episodes}")
     if scenario not in SCENARIOS:
         raise InvalidInputError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
     style = resolve_prompts("real_meshes" if real_meshes else scenario, prompts)
-    estimator = ProMPose.default()
-    rows = []
-    t_all = time.perf_counter()
     meta = {
         "scenario": "real_meshes" if real_meshes else scenario,
         "oracle_mask": oracle_mask,
@@ -369,96 +544,20 @@ def run_benchmark(
         "seed0": seed0,
         "episodes": episodes,
     }
-    for i in range(episodes):
-        seed = seed0 + i
-        plan = _episode_plan(scenario, seed, place, real_meshes, style)
-        command = plan.command
-        t0 = time.perf_counter()
-        row: dict[str, Any] = {"seed": seed, "command": command, "prompts": style}
-        if plan.lookalike_kind is not None:
-            row["lookalike_kind"] = plan.lookalike_kind
-        row.update(
-            target_object=plan.target_object,
-            fitting_objects=plan.fitting_objects,
-            scene_objects=_scene_objects(plan, None),
-        )
-        try:
-            wrap = None
-            if oracle_mask:
-                oracle_target = plan.target_object or (plan.fitting_objects or [None])[0]
+    specs = [
+        EpisodeSpec(scenario, seed0 + i, place, real_meshes, style, oracle_mask,
+                    None if out_dir is None else str(out_dir))
+        for i in range(episodes)
+    ]  # fmt: skip
+    if ray is not None or executor is not None or resume:
+        return _run_sweep(specs, meta, json_out, progress, ray, resume, retries, executor)
+    from prompose_grasp.perception.estimator import ProMPose
 
-                def wrap(world, camera, _command=command, _target=oracle_target):
-                    from sim.pick import target_name_for
-
-                    name = _target or target_name_for(world, _command)
-                    return OracleMaskEstimator(estimator, world, camera, name)
-
-            ep_out = None if out_dir is None else Path(out_dir) / f"episode_{seed:04d}"
-            targets = plan.fitting_objects or None
-            result = run_episode(
-                plan.scene,
-                command,
-                ep_out,
-                seed=seed,
-                estimator=estimator,
-                estimator_wrapper=wrap,
-                targets=targets,
-            )
-            s = result.summary
-            ev = s["evaluation"]
-            scene_objects = _scene_objects(plan, ev.get("scene_objects"))
-            fitting = (
-                plan.fitting_objects
-                if plan.fitting_objects is not None
-                else fitting_objects(command, scene_objects)
-            )
-            loop_reason = s["outcome"]["reason"]
-            parsed = s["outcome"].get("command") or {}
-            verdict = judge(
-                loop_reason,
-                bool(s["success"]),
-                fitting,
-                ev.get("lifted_objects", []),
-                ev.get("placed_objects"),
-                place=parsed.get("action", "pick") in ("place", "stack"),
-            )
-            row.update(
-                success=verdict["success"],
-                reason=verdict["reason"],
-                loop_reason=loop_reason,
-                ambiguous=verdict["ambiguous"],
-                wrong_objects=verdict["wrong_objects"],
-                fitting_objects=fitting,
-                scene_objects=scene_objects,
-                message=s["outcome"]["message"],
-                object=ev["object"],
-                lifted_objects=ev.get("lifted_objects"),
-                placed_objects=ev.get("placed_objects"),
-                lift_height_m=s["lift_height_m"],
-                inside_target=ev.get("inside_target"),
-                sim_time_s=s["sim_time_s"],
-                wall_time_s=s["timings_s"]["episode_wall"],
-                timings_s=s["timings_s"],
-                attempts=len(s["outcome"]["attempts"]),
-                attempt_results=[
-                    f"{a['method']}: {a['result']} ({a['message']})" for a in s["outcome"]["attempts"]
-                ],
-                moved=ev.get("moved"),
-                estimate_centre_error_m=s.get("estimate_centre_error_m"),
-                estimate_size_m=None if s["estimate"] is None else s["estimate"]["size"],
-                ground_truth_size_m=None if s["ground_truth"] is None else s["ground_truth"]["size"],
-            )
-        except Exception as exc:
-            log.exception("episode seed %d crashed", seed)
-            row.update(
-                success=False,
-                reason=f"crash:{type(exc).__name__}",
-                loop_reason=None,
-                ambiguous=None,
-                message=str(exc)[:300],
-                sim_time_s=float("nan"),
-                wall_time_s=time.perf_counter() - t0,
-            )
+    estimator = ProMPose.default()  # one per run, as before the sweep existed
+    rows = []
+    t_all = time.perf_counter()
+    for i, spec in enumerate(specs):
+        row = run_episode_row(spec, estimator)
         rows.append(row)
         if json_out is not None:
             partial = summarise(rows, meta, time.perf_counter() - t_all)
@@ -467,11 +566,47 @@ def run_benchmark(
         if progress:
             n_ok = sum(r["success"] for r in rows)
             print(
-                f"[{i + 1}/{episodes}] seed {seed} {row['reason']:20s} {command!r} "
+                f"[{i + 1}/{episodes}] seed {spec.seed} {row['reason']:20s} {row['command']!r} "
                 f"({row['wall_time_s']:.1f} s wall) -> {n_ok}/{len(rows)}",
                 flush=True,
             )
     return summarise(rows, meta, time.perf_counter() - t_all)
+
+
+def sweep_file(json_out: str | Path) -> Path:
+    """The resume file of a sweep-run bench next to its report: OUT.json -> OUT.sweep.jsonl."""
+    p = Path(json_out)
+    return p.with_name(p.stem + ".sweep.jsonl")
+
+
+def _run_sweep(specs, meta, json_out, progress, ray, resume, retries, executor) -> dict[str, Any]:
+    from prompose_grasp.eval.sweep import Unit, make_executor, run_sweep
+
+    if resume and json_out is None:
+        raise InvalidInputError(
+            "--resume needs --json OUT: the finished episodes are kept in OUT.sweep.jsonl"
+        )
+    executor = executor or make_executor(ray)
+    units = [Unit(f"seed_{spec.seed:06d}", spec) for spec in specs]
+    # one episode: MuJoCo physics and rendering and the estimator's torch, each single-threaded
+    sweep = run_sweep(
+        episode_unit,
+        units,
+        executor=executor,
+        num_cpus=1,
+        retries=retries,
+        resume_file=None if json_out is None else sweep_file(json_out),
+        resume=resume,
+        progress=progress,
+        label="episodes",
+    )
+    rows = [
+        sweep.results[u.id] if u.id in sweep.results else failure_row(u.payload, sweep.failures[u.id])
+        for u in units
+    ]
+    report = summarise(rows, meta, sweep.wall_s)
+    report["executor"] = sweep.executor
+    return report
 
 
 def summarise(rows: list[dict[str, Any]], meta: dict[str, Any], total_wall_s: float = 0.0) -> dict[str, Any]:
@@ -574,10 +709,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--json", dest="json_out", default=None, help="write the report here")
     p.add_argument("--out", default=None, help="also write each episode's summary and overlay under DIR")
+    p.add_argument(
+        "--ray",
+        default=None,
+        metavar="ADDRESS",
+        help="run the episodes as Ray tasks: local:N (a local cluster of N CPUs), auto (the cluster of "
+        "`ray start`), or HOST:PORT (extra `cluster`; docs/scale.md)",
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="skip the episodes that JSON.sweep.jsonl lists as done (needs --json)",
+    )
+    p.add_argument("--retries", type=int, default=2, help="attempts after the first for a failed episode")
 
 
 def run_from_args(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    if getattr(args, "ray", None) is not None:
+        from prompose_grasp.eval.sweep import parse_ray_address
+
+        parse_ray_address(args.ray)  # a bad --ray fails before any episode
+    if getattr(args, "retries", 0) < 0:
+        raise InvalidInputError(f"--retries must be >= 0, got {args.retries}")
+    if getattr(args, "resume", False) and not args.json_out:
+        raise InvalidInputError(
+            "--resume needs --json OUT: the finished episodes are kept in OUT.sweep.jsonl"
+        )
     report = run_benchmark(
         args.scenario,
         args.episodes,
@@ -588,6 +746,9 @@ def run_from_args(args: argparse.Namespace) -> int:
         out_dir=args.out,
         json_out=args.json_out,
         prompts=getattr(args, "prompts", None),
+        ray=getattr(args, "ray", None),
+        resume=getattr(args, "resume", False),
+        retries=getattr(args, "retries", 2),
     )
     print(format_report(report))
     if args.json_out:

@@ -1,6 +1,7 @@
 """Synthetic RGB-D dataset generator (CAMERA25-like scenes, moving camera): DESIGN.md "Synthetic dataset".
 
     python -m sim.dataset --out DIR --scenes N --frames M --seed S [--workers 2] [--noise realsense]
+                          [--ray local:N|auto|HOST:PORT] [--resume]
 
 Each scene: a table with a random size, texture and lighting; 3 to 6 procedural objects standing close
 together (so they occlude each other) with random shapes and materials; a camera that orbits the group over
@@ -30,6 +31,11 @@ test-category objects and 1-2 train-category distractors (annotated too; their c
 
 Deterministic: scene i draws everything from `numpy.random.default_rng([seed, i])`, so the output does not
 depend on the worker count or on resuming. Resumable: a scene whose last meta file exists is skipped.
+
+`--ray` runs each scene as a Ray task of one CPU (`prompose_grasp.eval.sweep`, extra `cluster`; docs/scale.md)
+instead of the local process pool: the files are byte-identical to a sequential run's. With `--ray` or
+`--resume`, DIR/sweep.jsonl records each finished scene as it ends; `--resume` skips those, and a scene that
+failed after its retries is listed in the summary (`failed`) with its error type.
 """
 
 from __future__ import annotations
@@ -45,10 +51,11 @@ import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from prompose_grasp.errors import InvalidInputError, UnknownNameError
+from prompose_grasp.errors import InvalidInputError, MissingDependencyError, UnknownNameError
 
 __all__ = [
     "DEFAULT_TEST_CATEGORIES",
@@ -348,8 +355,29 @@ def _worker(args: tuple[int, DatasetConfig, bool]) -> tuple[int, int]:
     return index, generate_scene(index, config, is_test)
 
 
-def generate(config: DatasetConfig, progress: bool = True) -> dict:
-    """Generate the dataset; returns {"frames_written", "scenes_skipped", "seconds", "frames_per_second"}."""
+def scene_unit(payload: tuple[int, DatasetConfig, bool]) -> dict:
+    """One scene as a sweep unit (`prompose_grasp.eval.sweep`): {"scene", "frames_written"}."""
+    index, config, is_test = payload
+    return {"scene": scene_name(index), "frames_written": generate_scene(index, config, is_test)}
+
+
+#: The resume file of a sweep-run generation (`--ray` / `--resume`), in the output folder.
+SWEEP_FILE = "sweep.jsonl"
+
+
+def generate(
+    config: DatasetConfig,
+    progress: bool = True,
+    ray: str | None = None,
+    resume: bool = False,
+    retries: int = 2,
+    executor: Any = None,
+) -> dict:
+    """Generate the dataset; returns {"frames_written", "scenes_skipped", "seconds", "frames_per_second"}
+    (and, through the sweep: "failed" rows and "scene_wall_s" per scene).
+
+    `ray` (a `--ray` value), `executor` (a `prompose_grasp.eval.sweep` executor) or `resume` run the scenes
+    through the sweep with DIR/sweep.jsonl as its resume file; otherwise `config.workers` local processes."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -357,6 +385,8 @@ def generate(config: DatasetConfig, progress: bool = True) -> dict:
     (out / "split.json").write_text(json.dumps(split, indent=1))
     test = set(split["test"]["scenes"])
     jobs = [(i, config, scene_name(i) in test) for i in range(config.scenes)]
+    if ray is not None or executor is not None or resume:
+        return _generate_sweep(jobs, out, progress, ray, resume, retries, executor)
     t0 = time.perf_counter()
     written = skipped = 0
     bar = None
@@ -401,6 +431,45 @@ def generate(config: DatasetConfig, progress: bool = True) -> dict:
     }
 
 
+def _generate_sweep(jobs, out: Path, progress: bool, ray, resume: bool, retries: int, executor) -> dict:
+    from prompose_grasp.eval.sweep import Unit, make_executor, run_sweep
+
+    executor = executor or make_executor(ray)
+    units = [Unit(scene_name(job[0]), job) for job in jobs]
+    sweep = run_sweep(
+        scene_unit,
+        units,
+        executor=executor,
+        num_cpus=1,
+        retries=retries,
+        resume_file=out / SWEEP_FILE,
+        resume=resume,
+        progress=progress,
+        label="scenes",
+    )
+    ran = [r for uid, r in sweep.results.items() if uid not in sweep.resumed]  # resumed: written before
+    written = sum(int(r["frames_written"]) for r in ran)
+    skipped = sum(int(r["frames_written"]) == 0 for r in ran) + len(sweep.resumed)
+    return {
+        "frames_written": written,
+        "scenes_skipped": skipped,
+        "seconds": sweep.wall_s,
+        "frames_per_second": written / sweep.wall_s if sweep.wall_s > 0 else 0.0,
+        "failed": [f.as_row() for f in sweep.failures.values()],
+        "scene_wall_s": sweep.unit_wall_s,
+        "executor": sweep.executor,
+    }
+
+
+def _check_sweep_args(ray: str | None, retries: int) -> None:
+    if ray is not None:
+        from prompose_grasp.eval.sweep import parse_ray_address
+
+        parse_ray_address(ray)
+    if retries < 0:
+        raise InvalidInputError(f"--retries must be >= 0, got {retries}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m sim.dataset", description=__doc__.splitlines()[0])
     parser.add_argument("--out", required=True, help="output folder")
@@ -413,6 +482,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--noise", default="realsense", help="clean | realsense | kinect")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--no-progress", action="store_true")
+    parser.add_argument(
+        "--ray", default=None, metavar="ADDRESS",
+        help="run the scenes as Ray tasks: local:N (a local cluster of N CPUs), auto (the cluster of "
+        "`ray start`), or HOST:PORT (extra `cluster`; --workers is then unused)",
+    )  # fmt: skip
+    parser.add_argument("--resume", action="store_true", help="skip the scenes OUT/sweep.jsonl lists as done")
+    parser.add_argument("--retries", type=int, default=2, help="attempts after the first for a failed scene")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
@@ -420,8 +496,11 @@ def main(argv: list[str] | None = None) -> int:
             out=args.out, scenes=args.scenes, frames=args.frames, seed=args.seed, width=args.width,
             height=args.height, fovy_deg=args.fovy_deg, noise=args.noise, workers=args.workers,
         )  # fmt: skip
-        stats = generate(config, progress=not args.no_progress)
-    except (InvalidInputError, UnknownNameError) as exc:
+        _check_sweep_args(args.ray, args.retries)  # before anything is written
+        stats = generate(
+            config, progress=not args.no_progress, ray=args.ray, resume=args.resume, retries=args.retries
+        )
+    except (InvalidInputError, UnknownNameError, MissingDependencyError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(
@@ -429,8 +508,13 @@ def main(argv: list[str] | None = None) -> int:
         f"({stats['frames_per_second']:.2f} frames/s), "
         f"{stats['scenes_skipped']} scenes already complete; split: {Path(args.out) / 'split.json'}"
     )
-    return 0
+    for row in stats.get("failed", []):
+        print(f"FAILED {row['unit']}: {row['error']} after {row['attempts']} attempts: {row['message']}")
+    return 1 if stats.get("failed") else 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # run the module's own copy, so that the units Ray pickles name `sim.dataset`, not `__main__`
+    from sim.dataset import main as _main
+
+    sys.exit(_main())

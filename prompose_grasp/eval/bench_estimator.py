@@ -41,6 +41,7 @@ import sys
 import time
 from collections import defaultdict
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -107,9 +108,19 @@ def run_estimator_benchmark(
     estimator: ProMPose | None = None,
     progress: bool = True,
     methods: str | Sequence[str] | None = None,
+    *,
+    ray: str | None = None,
+    resume: bool = False,
+    retries: int = 2,
+    executor: Any = None,
+    resume_file: str | Path | None = None,
 ) -> dict[str, Any]:
     """Run the methods (`parse_methods`; default every one) over the split; returns the report dict (tables
-    per method run and IoU mode, timings)."""
+    per method run and IoU mode, timings).
+
+    `ray` (a `--ray` value), `executor` (a `prompose_grasp.eval.sweep` executor) or `resume` run each scene
+    (its frames, in order: the tracked rows need them in one process) as a sweep unit of one CPU, with
+    `resume_file` (JSONL) keeping the finished scenes; the tables equal this process's loop's."""
     wanted = parse_methods(methods)
     data = Path(data)
     doc = read_split(data)
@@ -117,43 +128,26 @@ def run_estimator_benchmark(
         raise KeyError(f"split {split!r} not in {data / 'split.json'} (has {sorted(doc)})")
     categories = sorted(doc[split]["categories"])
     synsets = ["BG", *categories]
-    estimator = estimator or ProMPose.default()
+    scenes = list(doc[split]["scenes"])
+    budgets = _frame_budgets(data, scenes, max_frames)
     per_image: dict[str, list[dict[str, Any]]] = {m: [] for m in wanted}
     times: dict[str, list[float]] = defaultdict(list)
     symmetry: dict[str, str] = {}
     frames_done = 0
-    scenes = list(doc[split]["scenes"])
-    t_start = time.perf_counter()
-    for i_scene, scene in enumerate(scenes):
-        frames = list(scene_frames(data, scene))
-        if max_frames is not None:
-            frames = frames[: max(0, max_frames - frames_done)]
-        if not frames:
-            break
-        preds_tracked: dict[str, list[list[tuple[int, Pose9D, float]]]] = {}
-        if "ours_tracked" in wanted:
-            preds_tracked["ours_tracked"] = _track_scene(estimator, frames, categories, times)
-        if "ours_tracked_oracle_mask" in wanted:
-            preds_tracked["ours_tracked_oracle_mask"] = _track_scene_oracle_mask(
-                estimator, frames, categories, times
-            )
-        priors: dict[int, ShapePrior] = {}
-        for k, sf in enumerate(frames):
-            evaluated = evaluated_objects(sf, categories)
-            gts = [(synsets.index(o.category), o.pose, o.handle_visible) for o in evaluated]
-            for o in sf.ground_truth_objects:
-                symmetry[o.category] = o.symmetry
-            preds = _frame_predictions(estimator, sf, evaluated, synsets, candidates, priors, times, wanted)
-            for m, per_frame in preds_tracked.items():
-                preds[m] = per_frame[k]
-            for m in wanted:
-                per_image[m].append(nocs_image_result(gts, preds[m]))
-            frames_done += 1
-        if progress:
-            log.warning("bench: scene %d/%d (%s), %d frames, %.0f s", i_scene + 1, len(scenes), scene,
-                        frames_done, time.perf_counter() - t_start)  # fmt: skip
-        if max_frames is not None and frames_done >= max_frames:
-            break
+    failed: list[dict[str, Any]] = []
+    specs = [_SceneSpec(str(data), scene, n, tuple(categories), candidates, wanted) for scene, n in budgets]
+    if ray is not None or executor is not None or resume:
+        scene_results = _sweep_scenes(specs, ray, resume, retries, executor, resume_file, progress, failed)
+    else:
+        estimator = estimator or ProMPose.default()
+        scene_results = _sequential_scenes(estimator, specs, progress)
+    for result in scene_results:
+        for m in wanted:
+            per_image[m].extend(result["per_image"][m])
+        for k, v in result["times"].items():
+            times[k].extend(v)
+        symmetry.update(result["symmetry"])
+        frames_done += int(result["frames"])
     ysym = tuple(c for c, s in symmetry.items() if s == "y_continuous")
     tables = nocs_tables(per_image, synsets, ysym)
     track_s = times.get("track_update", [])
@@ -174,7 +168,126 @@ def run_estimator_benchmark(
         "tracking_oracle_mask_fps": _per_second(oracle_s, np.mean),
         "tracking_oracle_mask_fps_median": _per_second(oracle_s, np.median),
         "machine": {"platform": platform.platform(), "python": sys.version.split()[0]},
+        "failed_scenes": failed,
     }
+
+
+@dataclass(frozen=True)
+class _SceneSpec:
+    """One scene's share of the benchmark (a sweep unit): its first `frames` frames."""
+
+    data: str
+    scene: str
+    frames: int
+    categories: tuple[str, ...]
+    candidates: int
+    wanted: tuple[str, ...]
+
+
+def _frame_budgets(data: Path, scenes: Sequence[str], max_frames: int | None) -> list[tuple[str, int]]:
+    """(scene, frames to run) in split order, the scenes after `max_frames` frames left out."""
+    out: list[tuple[str, int]] = []
+    left = max_frames
+    for scene in scenes:
+        n = len(list((data / scene).glob("*-meta.json")))
+        if left is not None:
+            n = min(n, left)
+            if n <= 0:
+                break
+            left -= n
+        out.append((scene, n))
+    return out
+
+
+def _scene_result(estimator: ProMPose, spec: _SceneSpec) -> dict[str, Any]:
+    """The per-image results (NOCS dicts per method), timings and symmetries of one scene's frames."""
+    frames = list(scene_frames(spec.data, spec.scene, max_frames=spec.frames))
+    categories, wanted = list(spec.categories), spec.wanted
+    synsets = ["BG", *categories]
+    times: dict[str, list[float]] = defaultdict(list)
+    symmetry: dict[str, str] = {}
+    per_image: dict[str, list[dict[str, Any]]] = {m: [] for m in wanted}
+    preds_tracked: dict[str, list[list[tuple[int, Pose9D, float]]]] = {}
+    if "ours_tracked" in wanted:
+        preds_tracked["ours_tracked"] = _track_scene(estimator, frames, categories, times)
+    if "ours_tracked_oracle_mask" in wanted:
+        preds_tracked["ours_tracked_oracle_mask"] = _track_scene_oracle_mask(
+            estimator, frames, categories, times
+        )
+    priors: dict[int, ShapePrior] = {}
+    for k, sf in enumerate(frames):
+        evaluated = evaluated_objects(sf, categories)
+        gts = [(synsets.index(o.category), o.pose, o.handle_visible) for o in evaluated]
+        for o in sf.ground_truth_objects:
+            symmetry[o.category] = o.symmetry
+        preds = _frame_predictions(estimator, sf, evaluated, synsets, spec.candidates, priors, times, wanted)
+        for m, per_frame in preds_tracked.items():
+            preds[m] = per_frame[k]
+        for m in wanted:
+            per_image[m].append(nocs_image_result(gts, preds[m]))
+    return {"per_image": per_image, "times": dict(times), "symmetry": symmetry, "frames": len(frames)}
+
+
+def _sequential_scenes(estimator: ProMPose, specs: Sequence[_SceneSpec], progress: bool):
+    t_start = time.perf_counter()
+    done = 0
+    for i, spec in enumerate(specs):
+        result = _scene_result(estimator, spec)
+        done += result["frames"]
+        if progress:
+            log.warning("bench: scene %d/%d (%s), %d frames, %.0f s", i + 1, len(specs), spec.scene, done,
+                        time.perf_counter() - t_start)  # fmt: skip
+        yield result
+
+
+#: This process's estimator for the sweep's scene units, built on the first and reused.
+_ESTIMATOR: list[ProMPose] = []
+
+
+def scene_unit(spec: _SceneSpec) -> dict[str, Any]:
+    """One scene as a sweep unit: `_scene_result` with the NOCS arrays as JSON ({dtype, shape, data})."""
+    if not _ESTIMATOR:
+        _ESTIMATOR.append(ProMPose.default())
+    result = _scene_result(_ESTIMATOR[0], spec)
+    result["per_image"] = {
+        m: [{k: _encode(v) for k, v in image.items()} for image in images]
+        for m, images in result["per_image"].items()
+    }
+    return result
+
+
+def _encode(a: np.ndarray) -> dict[str, Any]:
+    # float64 and int64 survive JSON exactly (repr round trip), so the tables do not change
+    return {"dtype": str(a.dtype), "shape": list(a.shape), "data": a.ravel().tolist()}
+
+
+def _decode(d: dict[str, Any]) -> np.ndarray:
+    return np.asarray(d["data"], dtype=d["dtype"]).reshape(d["shape"])
+
+
+def _sweep_scenes(specs, ray, resume, retries, executor, resume_file, progress, failed):
+    from prompose_grasp.eval.sweep import Unit, make_executor, run_sweep
+
+    if resume and resume_file is None:
+        raise InvalidInputError("resume needs a resume file (prompose-grasp bench: --json OUT)")
+    sweep = run_sweep(
+        scene_unit,
+        [Unit(spec.scene, spec) for spec in specs],
+        executor=executor or make_executor(ray),
+        num_cpus=1,
+        retries=retries,
+        resume_file=resume_file,
+        resume=resume,
+        progress=progress,
+        label="scenes",
+    )
+    failed.extend(f.as_row() for f in sweep.failures.values())
+    for result in sweep.results.values():
+        result["per_image"] = {
+            m: [{k: _decode(v) for k, v in image.items()} for image in images]
+            for m, images in result["per_image"].items()
+        }
+        yield result
 
 
 def _confidence(grounding_score: float, coverage: float) -> float:

@@ -10,6 +10,12 @@ resumed run continues exactly as an uninterrupted one would.
 Output folder: `last.pt` (checkpoint with optimiser and scheduler state; `load_estimator` reads it) and
 `train_log.jsonl` (one JSON object per logged step: losses, learning rate, and validation errors when
 evaluated). `main(argv)` is the `prompose-grasp train` command.
+
+Across processes: `torchrun --nproc_per_node N -m prompose_grasp.perception.train --data DIR --out RUN ...`
+(DistributedDataParallel, gloo on the CPU, nccl with `--device cuda`; `perception.distributed`). The global
+batch (`--batch-size`, a multiple of N) is drawn as in one process and split by rank; rank 0 writes the
+checkpoint and log; `--no-resume` aside, a restarted job resumes from `last.pt`. The loss curve equals one
+process's with the same global batch up to the order of float additions (docs/scale.md).
 """
 
 from __future__ import annotations
@@ -191,7 +197,18 @@ def train_on_tracks(
     With `resume` and an existing `out_dir/last.pt`, the run continues from it (same network config
     required) up to `train_config.steps`. `stop_at` ends this call after that many total steps (with a
     checkpoint), as an interruption would; the schedule still spans `train_config.steps`.
+
+    In a process group of several processes (`torchrun`, `perception.distributed`), each rank trains on its
+    shard of every global batch of `train_config.batch_size` windows under DistributedDataParallel; the
+    logged losses are the global batch's; rank 0 writes the checkpoint and the log.
     """
+    from prompose_grasp.perception.distributed import current_context
+
+    ctx = current_context(device)
+    if ctx is not None:
+        device = ctx.device
+        ctx.shard(train_config.batch_size)  # fails early on a batch that does not split evenly
+    main_rank = ctx is None or ctx.is_main
     t0 = time.perf_counter()
     if not train_tracks:
         raise InvalidInputError("no training tracks: does the dataset's train split hold any objects?")
@@ -199,7 +216,7 @@ def train_on_tracks(
     out.mkdir(parents=True, exist_ok=True)
     ckpt_path = out / CHECKPOINT_NAME
     tc = train_config
-    torch.manual_seed(tc.seed)
+    torch.manual_seed(tc.seed)  # every rank initialises the same network (DDP also broadcasts rank 0's)
     model = ProMPoseNet(config).to(device)
     params = [p for p in model.parameters() if p.requires_grad]
     optimizer = torch.optim.Adam(params, lr=tc.lr, betas=tc.betas, weight_decay=tc.weight_decay)
@@ -217,18 +234,29 @@ def train_on_tracks(
         scheduler.load_state_dict(ckpt["scheduler"])
         start = int(ckpt["step"])
         log.info("resuming from %s at step %d", ckpt_path, start)
-    elif (out / LOG_NAME).exists():
+    elif main_rank and (out / LOG_NAME).exists():
         (out / LOG_NAME).unlink()  # a fresh run does not append to an old run's log
+    net: torch.nn.Module = model
+    if ctx is not None:
+        from torch.nn.parallel import DistributedDataParallel
+
+        ids = [ctx.device.index] if ctx.device.type == "cuda" else None
+        # no_temporal leaves the temporal position embedding out of the forward pass (checked for every
+        # ablation): DDP must not wait for its gradient
+        net = DistributedDataParallel(model, device_ids=ids, find_unused_parameters=config.temporal is False)
 
     end = tc.steps if stop_at is None else max(min(int(stop_at), tc.steps), start)
     windows = make_windows(train_tracks, config.window, stride=1)
-    log_file = (out / LOG_NAME).open("a")
+    log_file = (out / LOG_NAME).open("a") if main_rank else None
 
     def write(record: dict[str, Any]) -> None:
-        log_file.write(json.dumps(record) + "\n")
-        log_file.flush()
+        if log_file is not None:
+            log_file.write(json.dumps(record) + "\n")
+            log_file.flush()
 
     def save(step: int) -> None:
+        if not main_rank:
+            return
         save_checkpoint(
             ckpt_path,
             model,
@@ -238,12 +266,14 @@ def train_on_tracks(
             train_config=json.dumps(tc.to_dict()),
         )
 
-    val_first = evaluate(model, val_tracks, tc.batch_size, device, tc.loss) if val_tracks else {}
+    # validation on rank 0 only (the others would compute the same numbers)
+    validate = bool(val_tracks) and main_rank
+    val_first = evaluate(model, val_tracks, tc.batch_size, device, tc.loss) if validate else {}
     if val_tracks:
         write({"step": start, "val": val_first})
     val_last = val_first
     losses: dict[str, float] = {}
-    bar = _progress_bar(progress)
+    bar = _progress_bar(progress and main_rank)
     task = bar.add_task("train", total=end, completed=start, info="") if bar is not None else None
     model.train()
     try:
@@ -252,10 +282,15 @@ def train_on_tracks(
         for step in range(start, end):
             rng = np.random.default_rng([tc.seed, step])
             pick = rng.choice(len(windows), size=tc.batch_size, replace=len(windows) < tc.batch_size)
-            batch = collate(train_tracks, [windows[i] for i in pick], config.window, rng, tc.augment).to(
-                device
-            )
-            outputs = model(**batch.inputs())
+            batch = collate(train_tracks, [windows[i] for i in pick], config.window, rng, tc.augment)
+            denominators = None
+            if ctx is not None:
+                # the global batch was drawn and augmented as one process does; this rank keeps its shard,
+                # and its loss is its part of the global batch's (global valid-frame and window counts)
+                denominators = (float(batch.frame_valid.sum()), float(tc.batch_size))
+                batch = batch.rows(*ctx.shard(tc.batch_size))
+            batch = batch.to(device)
+            outputs = net(**batch.inputs())
             terms = pose_loss(
                 outputs,
                 batch.R_cam_obj,
@@ -266,19 +301,25 @@ def train_on_tracks(
                 outputs["prior_points"],
                 batch.frame_valid,
                 tc.loss,
+                denominators=denominators,
             )
-            if not torch.isfinite(terms["loss"]):
-                raise PromposeError(f"training diverged at step {step}: loss {float(terms['loss'])}")
+            if ctx is not None:
+                losses = ctx.all_sum(terms)  # the global batch's terms (identical on every rank)
+            else:
+                losses = {k: float(v.detach()) for k, v in terms.items()}
+            if not math.isfinite(losses["loss"]):
+                raise PromposeError(f"training diverged at step {step}: loss {losses['loss']}")
             optimizer.zero_grad(set_to_none=True)
-            terms["loss"].backward()
+            # DDP averages the ranks' gradients (sum / world size); the shards' losses sum to the global loss
+            loss = terms["loss"] if ctx is None else terms["loss"] * ctx.world_size
+            loss.backward()
             optimizer.step()
             scheduler.step()
             done = step + 1
-            losses = {k: float(v.detach()) for k, v in terms.items()}
             record: dict[str, Any] = {}
             if done % tc.log_every == 0 or done == end:
                 record.update(step=done, lr=optimizer.param_groups[0]["lr"], **losses)
-            if val_tracks and (done % tc.val_every == 0 or done == end):
+            if validate and (done % tc.val_every == 0 or done == end):
                 val_last = evaluate(model, val_tracks, tc.batch_size, device, tc.loss)
                 record.update(step=done, val=val_last)
             if record:
@@ -290,9 +331,12 @@ def train_on_tracks(
     finally:
         if bar is not None:
             bar.stop()
-        log_file.close()
+        if log_file is not None:
+            log_file.close()
     if start >= end and not ckpt_path.is_file():
         save(start)
+    if ctx is not None:
+        ctx.barrier()  # the checkpoint is written before any rank returns (and reads or resumes it)
     return TrainResult(
         steps=max(start, end),
         resumed_from=start,
@@ -456,7 +500,22 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run a parsed `prompose-grasp train` command."""
+    """Run a parsed `prompose-grasp train` command (one of the processes when `torchrun` started it)."""
+    from prompose_grasp.perception.distributed import init_from_env
+
+    try:
+        ctx = init_from_env(args.device)
+    except (RuntimeError, ValueError) as err:
+        Console(stderr=True).print(f"error: could not join the process group: {err}", markup=False)
+        return 2
+    try:
+        return _run(args, quiet=ctx is not None and not ctx.is_main)
+    finally:
+        if ctx is not None:
+            torch.distributed.destroy_process_group()
+
+
+def _run(args: argparse.Namespace, quiet: bool) -> int:
     try:
         torch.set_num_threads(max(int(args.threads), 1))
         tc = TrainConfig(
@@ -497,6 +556,8 @@ def run(args: argparse.Namespace) -> int:
     except PromposeError as err:
         Console(stderr=True).print(f"error: {err}", markup=False, highlight=False)
         return 2
+    if quiet:  # rank 0 reports for the job
+        return 0
     Console().print(
         json.dumps(
             {

@@ -64,3 +64,27 @@ def test_logistics_cell_reaches_every_carton_top_and_the_conveyor(seed):
         conveyor = world.place_targets["conveyor"]
         p = (T_base_world @ np.append(conveyor.T_world_surface[:3, 3] + np.array([0.0, 0.0, 0.3]), 1.0))[:3]
         assert robot.ik(make_T(R_down, p), frame="tcp").success
+
+
+def test_a_unit_that_fails_after_its_retries_is_a_crash_row(monkeypatch, tmp_path):
+    # the sweep path (--resume without --ray): an episode whose unit keeps failing ends as a typed crash row
+    # counted as a failure, in seed order, while the others are accounted as usual
+    import sim.bench_pick as bp
+    from prompose_grasp.eval.sweep import SequentialExecutor
+
+    def flaky(spec):
+        if spec.seed == 1:
+            raise MemoryError("out of memory while rendering")
+        return {"seed": spec.seed, "command": "pick up the x", "success": True, "reason": "success",
+                "sim_time_s": 1.0, "wall_time_s": 1.0}  # fmt: skip
+
+    monkeypatch.setattr(bp, "episode_unit", flaky)
+    out = tmp_path / "r.json"
+    report = bp.run_benchmark("tabletop_household", 3, progress=False, executor=SequentialExecutor(),
+                              retries=1, json_out=out)  # fmt: skip
+    rows = report["rows"]
+    assert [r["seed"] for r in rows] == [0, 1, 2]
+    assert rows[1]["reason"] == "crash:MemoryError" and rows[1]["unit_attempts"] == 2
+    assert rows[1]["command"] == bp._episode_plan("tabletop_household", 1, False, False).command
+    assert report["successes"] == 2 and report["episodes"] == 3
+    assert len(bp.sweep_file(out).read_text().splitlines()) == 3  # each unit's end, the failure included

@@ -156,6 +156,10 @@ class NetworkBatch:
     def to(self, device: str | torch.device) -> NetworkBatch:
         return NetworkBatch(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
 
+    def rows(self, start: int, stop: int) -> NetworkBatch:
+        """Windows [start, stop) of the batch (a data-parallel rank's shard)."""
+        return NetworkBatch(**{f.name: getattr(self, f.name)[start:stop] for f in fields(self)})
+
     def inputs(self) -> dict[str, Tensor]:
         return {
             "crops": self.crops,

@@ -94,8 +94,12 @@ def chamfer_squared(a: Tensor, b: Tensor) -> Tensor:
     return d.amin(dim=2).mean(dim=1) + d.amin(dim=1).mean(dim=1)
 
 
-def _masked_mean(x: Tensor, valid: Tensor) -> Tensor:
+def _masked_mean(x: Tensor, valid: Tensor, count: float | None = None) -> Tensor:
+    """Mean of x over the valid entries; with `count`, the sum divided by that many (a shard's part of a
+    larger batch's mean)."""
     w = valid.to(x.dtype)
+    if count is not None:
+        return (x * w).sum() / max(float(count), 1.0)
     return (x * w).sum() / w.sum().clamp_min(1.0)
 
 
@@ -109,6 +113,7 @@ def pose_loss(
     prior_points: Tensor,
     frame_valid: Tensor,
     config: LossConfig | None = None,
+    denominators: tuple[float, float] | None = None,
 ) -> dict[str, Tensor]:
     """All loss terms of a batch of windows.
 
@@ -118,6 +123,9 @@ def pose_loss(
         symmetry: (B,) long symmetry codes.
         points: (B, n, N, 3) observed points [m]; prior_points: (B, Np, 3) unit box.
         frame_valid: (B, n) bool.
+        denominators: (valid frames, windows) of the global batch this one is a shard of (data-parallel
+            training): each term is then this shard's part of the global batch's term, so that the terms of
+            all shards sum to the global batch's. None: this batch alone.
     Returns:
         `loss` (the weighted total), `pose`, `rotation`, `translation`, `scale`, `temporal`, `geo`; scalars.
     """
@@ -125,10 +133,15 @@ def pose_loss(
     R, t, size = outputs["R"], outputs["t"], outputs["size"]
     B, n = R.shape[:2]
     valid = frame_valid
+    n_valid, n_windows = denominators if denominators is not None else (None, B)
     rot = symmetric_rotation_error(R, R_true, symmetry[:, None].expand(B, n))
     trans = (t - t_true).abs().sum(-1)
     scale = (size - size_true).abs().sum(-1)
-    l_rot, l_trans, l_scale = _masked_mean(rot, valid), _masked_mean(trans, valid), _masked_mean(scale, valid)
+    l_rot, l_trans, l_scale = (
+        _masked_mean(rot, valid, n_valid),
+        _masked_mean(trans, valid, n_valid),
+        _masked_mean(scale, valid, n_valid),
+    )
     l_pose = l_rot + l_trans + l_scale
 
     if n > 1:
@@ -138,13 +151,13 @@ def pose_loss(
             + geodesic_angle(R[:, :-1], R[:, 1:]) ** 2
             + ((size[:, 1:] - size[:, :-1]) ** 2).sum(-1)
         )
-        l_temp = (step * pair.to(step.dtype)).sum() / B
+        l_temp = (step * pair.to(step.dtype)).sum() / n_windows
     else:
         l_temp = R.new_zeros(())
 
     posed = (prior_points[:, None] * size[:, :, None, :]) @ R.transpose(-1, -2) + t[:, :, None, :]
     cd = chamfer_squared(posed.reshape(B * n, *posed.shape[2:]), points.reshape(B * n, *points.shape[2:]))
-    l_geo = _masked_mean(cd.reshape(B, n), valid)
+    l_geo = _masked_mean(cd.reshape(B, n), valid, n_valid)
 
     total = l_pose + cfg.lambda_temp * l_temp + cfg.lambda_geo * l_geo
     return {
