@@ -49,6 +49,8 @@ class EpisodeResult:
     outcome: PickOutcome
     summary: dict[str, Any]
     out_dir: Path | None
+    #: the episode sampled at a fixed control rate (`sim.recording`), when run with `record`
+    recording: Any = None
 
 
 def _target_name(
@@ -232,6 +234,7 @@ def run_episode(
     estimator_wrapper: Callable[[Any, str], Any] | None = None,
     wrist: bool = True,
     targets: list[str] | None = None,
+    record: Any = None,
 ) -> EpisodeResult:
     """Build the scene, run the library's closed loop on it, then evaluate against ground truth.
 
@@ -250,6 +253,8 @@ def run_episode(
         targets: evaluation only: the scene objects the command means, known by construction (a benchmark's
             plan; two look-alikes the words do not tell apart are both listed). The one that rose most is
             judged. Default: found from the command and the scene prompts (`_target_name`).
+        record: a `sim.recording.RecordConfig`: also sample the loop's run (front and wrist camera, joints,
+            TCP, gripper, commanded actions) at its control rate into `EpisodeResult.recording`.
 
     The summary's `evaluation` also holds `lifted_objects` (every object that rose >= `MIN_LIFT_M`),
     `placed_objects` for place commands (every object that ended inside the place target and did not start
@@ -296,7 +301,16 @@ def run_episode(
             pnp = PickAndPlace.for_cell(loop_cell, loop_estimator, config=config, on_event=on_event)
             if recorder is not None:
                 world.add_step_hook(recorder)
-            outcome = pnp.run(command)
+            sampler = None
+            if record is not None:
+                from sim.recording import EpisodeRecorder, recorded_cameras
+
+                sampler = EpisodeRecorder(world, arm, cell.gripper, recorded_cameras(world, camera), record)
+                sampler.start()
+            try:
+                outcome = pnp.run(command)
+            finally:
+                recording = sampler.stop() if sampler is not None else None
             if recorder is not None:
                 world.remove_step_hook(recorder)
             # Let the scene come to rest so a lost object has fallen before it is measured.
@@ -433,4 +447,4 @@ def run_episode(
             if recorder is not None:
                 summary["video"] = "episode.mp4" if recorder.write(out / "episode.mp4") else None
             (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    return EpisodeResult(outcome, summary, None if out_dir is None else Path(out_dir))
+    return EpisodeResult(outcome, summary, None if out_dir is None else Path(out_dir), recording)
