@@ -180,6 +180,9 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
     p.add_argument("--seed", type=int, default=0, help="scene and sensor-noise seed (default 0)")
     p.add_argument("--video", action="store_true", help="also record episode.mp4 (slower)")
+    p.add_argument(
+        "--record", default=None, metavar="DIR", help="also write the episode as a LeRobot dataset into DIR"
+    )
     p.set_defaults(func=_run_demo)
 
 
@@ -197,6 +200,9 @@ def _run_demo(args: argparse.Namespace) -> int:
            "--seed", str(args.seed)]  # fmt: skip
     if args.video:
         cmd.append("--video")
+    if args.record is not None:
+        _check_output_folder(args.record, "--record")
+        cmd += ["--record", args.record]
     return subprocess.call(cmd)
 
 
@@ -314,6 +320,9 @@ def _add_bench_pick(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--json", dest="json_out", default=None, help="write the report here")
     p.add_argument("--out", default=None, help="also write each episode's summary and overlay under DIR")
+    p.add_argument(
+        "--record", default=None, metavar="DIR", help="also write the episodes as a LeRobot dataset into DIR"
+    )
     p.set_defaults(func=_run_bench_pick)
 
 
@@ -331,7 +340,11 @@ def _run_bench_pick(args: argparse.Namespace) -> int:
     for flag in ("oracle_mask", "real_meshes", "place"):
         if getattr(args, flag):
             cmd.append("--" + flag.replace("_", "-"))
-    for flag, value in (("--prompts", args.prompts), ("--json", args.json_out), ("--out", args.out)):
+    if args.record is not None:
+        _check_output_folder(args.record, "--record")
+    for flag, value in (
+        ("--prompts", args.prompts), ("--json", args.json_out), ("--out", args.out), ("--record", args.record)
+    ):  # fmt: skip
         if value:
             cmd += [flag, value]
     return subprocess.call(cmd)

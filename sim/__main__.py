@@ -3,13 +3,15 @@
 Each camera gives a row: colour (with ground-truth boxes and names when --boxes) and colourised depth after
 the camera's noise model.
 
-`python -m sim pick --scene FILE --command "..." --out DIR --seed N [--video]`: one closed-loop language
-pick-and-place episode (`sim.pick`), writing DIR/summary.json, overlay_0.png and optionally episode.mp4.
+`python -m sim pick --scene FILE --command "..." --out DIR --seed N [--video] [--record DATASET]`: one
+closed-loop language pick-and-place episode (`sim.pick`), writing DIR/summary.json, overlay_0.png and
+optionally episode.mp4; --record also writes it as a LeRobot dataset (`sim.record_dataset`).
 
 `python -m sim bench-pick --scenario tabletop_household|logistics_pallet|logistics_palletise|real_meshes|
-lookalikes --episodes N [--oracle-mask] [--real-meshes] [--place] [--prompts colour+name|name] [--json OUT]`:
-the closed-loop success rate over seeded episodes, with wrong-object successes and ambiguous refusals
-accounted (`sim.bench_pick`).
+lookalikes --episodes N [--oracle-mask] [--real-meshes] [--place] [--prompts colour+name|name] [--json OUT]
+[--record DATASET [--record-fps 20] [--record-size 160x120]]`: the closed-loop success rate over seeded
+episodes, with wrong-object successes and ambiguous refusals accounted (`sim.bench_pick`); --record writes
+the episodes as a LeRobot v3.0 dataset (docs/recording.md).
 
 `python -m sim soak-track [--n 10000] [--json OUT]` and `python -m sim soak-episodes [--episodes 200]
 [--json OUT]`: memory (RSS, tracemalloc) and time per step over a 10,000-frame track and over back-to-back
@@ -63,7 +65,22 @@ def _pick(args: argparse.Namespace) -> int:
     def show(event) -> None:
         print(f"[{100 * event.fraction:3.0f}%] {event.stage:8s} {event.message}", flush=True)
 
-    result = run_episode(args.scene, args.command, args.out, seed=args.seed, video=args.video, on_event=show)
+    from sim.bench_pick import record_config_from_args
+
+    record = record_config_from_args(args)
+    sink = None
+    if record is not None:
+        from sim.record_dataset import EpisodeSink
+
+        sink = EpisodeSink(args.record, record)  # checks the folder before anything runs
+    result = run_episode(
+        args.scene, args.command, args.out, seed=args.seed, video=args.video, on_event=show, record=record
+    )
+    if sink is not None:
+        s = result.summary
+        sink.add(result.recording, args.command, s["success"], s["outcome"]["reason"], args.seed, args.scene)
+        sink.close()
+        print(f"recorded the episode ({result.recording.num_frames} frames) into {args.record}")
     if result.summary["outcome"]["reason"] == "not_understood":
         print(f"command not understood: {result.summary['outcome']['message']}", file=sys.stderr)
         return 2
@@ -96,7 +113,9 @@ def main(argv: list[str] | None = None) -> int:
     pick.add_argument("--out", required=True, help="output folder (summary.json, overlay_0.png, episode.mp4)")
     pick.add_argument("--seed", type=int, default=None, help="scene/noise seed (default: file's)")
     pick.add_argument("--video", action="store_true", help="also write episode.mp4")
-    from sim.bench_pick import add_arguments
+    from sim.bench_pick import add_arguments, add_record_arguments
+
+    add_record_arguments(pick)
 
     bench = sub.add_parser("bench-pick", help="closed-loop success rate over seeded episodes")
     add_arguments(bench)

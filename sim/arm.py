@@ -274,8 +274,8 @@ class SimArm(Arm):
         return self.world.data.ctrl[self.info.actuator_ids].copy()
 
     def commanded_joint_positions(self) -> np.ndarray:
-        """(6,) float64 the joint set-point the motion commands gave the servos last [rad], without the velocity
-        feed-forward advance `joint_targets` includes (the servo targets before the first command)."""
+        """(6,) float64 the joint set-point the motion commands gave the servos last [rad], without the
+        velocity feed-forward advance `joint_targets` includes (the servo targets before any command)."""
         return self.joint_targets() if self._q_cmd is None else self._q_cmd.copy()
 
     def T_world_flange(self) -> np.ndarray:

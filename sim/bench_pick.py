@@ -348,9 +348,14 @@ def run_benchmark(
     progress: bool = True,
     json_out: str | Path | None = None,
     prompts: str | None = None,
+    record: str | Path | None = None,
+    record_config: Any = None,
 ) -> dict[str, Any]:
     """Run `episodes` seeded episodes (seeds seed0 .. seed0 + episodes - 1) and summarise them; with
     `json_out` the report so far is rewritten after every episode (a long run can be stopped).
+
+    `record`: also write every episode into a new LeRobot dataset there (`sim.record_dataset`; the command as
+    its task, success and reason per episode), sampled with `record_config` (`sim.recording.RecordConfig`).
 
     `prompts`: "colour+name" (default; "pick up the red banana") or "name" (the bare object name, "pick up
     the banana"; the scene keeps its colours); `lookalikes` always says the product's name."""
@@ -362,6 +367,11 @@ def run_benchmark(
     if scenario not in SCENARIOS:
         raise InvalidInputError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
     style = resolve_prompts("real_meshes" if real_meshes else scenario, prompts)
+    sink = None
+    if record is not None:
+        from sim.record_dataset import EpisodeSink
+
+        sink = EpisodeSink(record, record_config)  # checks the folder before the estimator loads
     estimator = ProMPose.default()
     rows = []
     t_all = time.perf_counter()
@@ -407,6 +417,7 @@ def run_benchmark(
                 estimator=estimator,
                 estimator_wrapper=wrap,
                 targets=targets,
+                record=None if sink is None else sink.config,
             )
             s = result.summary
             ev = s["evaluation"]
@@ -452,6 +463,10 @@ def run_benchmark(
                 estimate_size_m=None if s["estimate"] is None else s["estimate"]["size"],
                 ground_truth_size_m=None if s["ground_truth"] is None else s["ground_truth"]["size"],
             )
+            if sink is not None:
+                row["record_episode"] = sink.add(
+                    result.recording, command, row["success"], row["reason"], seed, str(plan.scene)
+                )
         except Exception as exc:
             log.exception("episode seed %d crashed", seed)
             row.update(
@@ -475,7 +490,11 @@ def run_benchmark(
                 f"({row['wall_time_s']:.1f} s wall) -> {n_ok}/{len(rows)}",
                 flush=True,
             )
-    return summarise(rows, meta, time.perf_counter() - t_all)
+    report = summarise(rows, meta, time.perf_counter() - t_all)
+    if sink is not None:
+        sink.close()
+        report["record"] = {"root": str(sink.root), "episodes": sink.num_episodes}
+    return report
 
 
 def summarise(rows: list[dict[str, Any]], meta: dict[str, Any], total_wall_s: float = 0.0) -> dict[str, Any]:
@@ -578,6 +597,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--json", dest="json_out", default=None, help="write the report here")
     p.add_argument("--out", default=None, help="also write each episode's summary and overlay under DIR")
+    add_record_arguments(p)
+
+
+def add_record_arguments(p: argparse.ArgumentParser) -> None:
+    """--record DIR, --record-fps, --record-size (`sim.record_dataset`)."""
+    p.add_argument(
+        "--record",
+        default=None,
+        metavar="DIR",
+        help="also write the episodes as a LeRobot v3.0 dataset into DIR (a new folder): front and wrist "
+        "video, joints, TCP pose, gripper state, commanded actions, the command as task, success and reason",
+    )
+    p.add_argument("--record-fps", type=int, default=20, help="recording control rate [Hz] (default 20)")
+    p.add_argument("--record-size", default="160x120", help="recorded image size WxH (default 160x120)")
+
+
+def record_config_from_args(args: argparse.Namespace):
+    """The `RecordConfig` of --record-fps / --record-size, or None without --record."""
+    if getattr(args, "record", None) is None:
+        return None
+    from sim.recording import RecordConfig
+
+    try:
+        w, h = (int(v) for v in str(args.record_size).lower().split("x"))
+    except ValueError:
+        raise InvalidInputError(f"--record-size must be WxH like 160x120, got {args.record_size!r}") from None
+    return RecordConfig(fps=args.record_fps, width=w, height=h)
 
 
 def run_from_args(args: argparse.Namespace) -> int:
@@ -592,8 +638,12 @@ def run_from_args(args: argparse.Namespace) -> int:
         out_dir=args.out,
         json_out=args.json_out,
         prompts=getattr(args, "prompts", None),
+        record=getattr(args, "record", None),
+        record_config=record_config_from_args(args),
     )
     print(format_report(report))
+    if report.get("record"):
+        print(f"recorded {report['record']['episodes']} episodes into {report['record']['root']}")
     if args.json_out:
         Path(args.json_out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json_out).write_text(json.dumps(report, indent=2))

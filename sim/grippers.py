@@ -35,7 +35,6 @@ the lip friction, or by `open()`.
 from __future__ import annotations
 
 import abc
-
 import logging
 import math
 

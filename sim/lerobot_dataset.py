@@ -1,4 +1,4 @@
-"""Episodes written as a LeRobot dataset, codebase version v3.0 (the layout of lerobot 0.4.x), without lerobot.
+"""Episodes written as a LeRobot dataset, codebase version v3.0 (the layout of lerobot 0.4.x), no lerobot.
 
 lerobot itself is no dependency (its releases pin torch below the version here and pull torchvision, diffusers
 and wandb); this module writes its documented v3.0 layout with the libraries lerobot uses underneath: pyarrow
@@ -6,12 +6,12 @@ parquet files (with the Hugging Face `datasets` feature schema in their metadata
 PyAV mp4 videos and lerobot's meta JSON / parquet files. Layout, checked against huggingface/lerobot's
 `src/lerobot/datasets/{utils,lerobot_dataset,video_utils,compute_stats}.py` (`CODEBASE_VERSION = "v3.0"`)::
 
-    ROOT/meta/info.json                                 codebase_version, fps, features, path templates, totals
-    ROOT/meta/stats.json                                min / max / mean / std / count / q01..q99 per feature
-    ROOT/meta/tasks.parquet                             task text (the index) -> task_index
-    ROOT/meta/episodes/chunk-000/file-000.parquet       one row per episode: length, tasks, frame and video
-                                                        ranges, per-episode stats, success, reason, seed
-    ROOT/data/chunk-{c:03d}/file-{f:03d}.parquet        one row per frame, many episodes per file
+    ROOT/meta/info.json                            codebase_version, fps, features, path templates, totals
+    ROOT/meta/stats.json                           min / max / mean / std / count / q01..q99 per feature
+    ROOT/meta/tasks.parquet                        task text (the index) -> task_index
+    ROOT/meta/episodes/chunk-000/file-000.parquet  one row per episode: length, tasks, frame and video
+                                                   ranges, per-episode stats, success, reason, seed
+    ROOT/data/chunk-{c:03d}/file-{f:03d}.parquet   one row per frame, many episodes per file
     ROOT/videos/{video_key}/chunk-{c:03d}/file-{f:03d}.mp4   many episodes per file, one after the other
 
 Files roll over at lerobot's default sizes (data 100 MB, video 500 MB, 1000 files per chunk). Frame k of an
@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 from collections.abc import Mapping
 from fractions import Fraction
 from pathlib import Path
@@ -37,8 +38,8 @@ __all__ = [
     "DEFAULT_FEATURES",
     "LEROBOT_VERSION",
     "LeRobotDatasetWriter",
-    "episode_stats",
     "aggregate_stats",
+    "episode_stats",
 ]
 
 log = logging.getLogger(__name__)
@@ -147,6 +148,9 @@ class _VideoFile:
     def __init__(self, path: Path, fps: int, width: int, height: int, codec: str):
         import av
 
+        # SVT-AV1 prints its whole configuration to stderr at every encoder start unless told to keep to
+        # warnings and errors (it reads this once, when its first encoder starts)
+        os.environ.setdefault("SVT_LOG", "2")
         path.parent.mkdir(parents=True, exist_ok=True)
         self.path = path
         self.container = av.open(str(path), mode="w")

@@ -13,10 +13,10 @@ every `1 / fps` seconds of sim time it samples
 
 Sampling never changes the physics: the images and the TCP pose come from a scratch `MjData` holding a copy of
 the positions (rendering on the world's own data would recompute its body poses mid-step, which the suction
-cup's load check reads), so an episode is the same with recording on or off. The defaults keep recording cheap on CPUs: 20 Hz (a usual control rate of
-lerobot's arm datasets; the 500 Hz physics rate is a whole multiple of it), 160 x 120 images without shadows
-(a few ms per image with software OpenGL, `RecordConfig.shadows`), so a 30 s episode adds 600 frames and a
-few seconds of rendering; all settable (`RecordConfig`).
+cup's load check reads), so an episode is the same with recording on or off. The defaults keep
+recording cheap on CPUs: 20 Hz (a usual control rate of lerobot's arm datasets; the 500 Hz physics rate is a
+whole multiple of it), 160 x 120 images without shadows (a few ms per image with software OpenGL,
+`RecordConfig.shadows`), so a 30 s episode adds 600 frames and a few seconds of rendering; all settable.
 
 `replay_episode` drives a freshly built copy of the scene with the recorded actions through `SimArm.servo`
 and the gripper's `apply_command`, interpolating the set-points between ticks (monotone cubic, as
@@ -71,7 +71,7 @@ class RecordConfig:
 
     Attributes:
         fps: control rate [Hz]; the physics rate (500 Hz at the 2 ms step) must be a whole multiple of it.
-        width, height: recorded image size [px] (every camera rendered at this size with its own field of view).
+        width, height: recorded image size [px] (every camera rendered at this size, its own field of view).
         shadows: render shadows and reflections. Off by default: their cost does not shrink with the image
             (a 1024 x 1024 shadow map per light and image); with software OpenGL a 160 x 120 frame of the
             tabletop took 44 ms with them and 3-7 ms without.
@@ -166,9 +166,10 @@ class EpisodeRecorder:
         every = round(1.0 / (self.config.fps * dt))
         if every < 1 or abs(every * dt * self.config.fps - 1.0) > 1e-9:
             rate = 1.0 / dt
+            fits = [str(f) for f in (10, 20, 25, 50) if abs(rate / f - round(rate / f)) < 1e-9]
             raise InvalidInputError(
                 f"fps {self.config.fps} does not divide the physics rate {rate:g} Hz; use one that does, "
-                f"e.g. {', '.join(str(f) for f in (10, 20, 25, 50) if abs(rate / f - round(rate / f)) < 1e-9)}"
+                f"e.g. {', '.join(fits)}"
             )
         unknown = [c for c in cameras.values() if c not in world.cameras]
         if unknown:
@@ -216,7 +217,8 @@ class EpisodeRecorder:
         mujoco.mj_kinematics(m, s)
         mujoco.mj_camlight(m, s)
         b = info.flange_body
-        T_base_tcp = info.T_base_world @ make_T(s.xmat[b].reshape(3, 3), s.xpos[b]) @ self.arm.robot.T_flange_tcp
+        T_world_flange = make_T(s.xmat[b].reshape(3, 3), s.xpos[b])
+        T_base_tcp = info.T_base_world @ T_world_flange @ self.arm.robot.T_flange_tcp
         x, y, z, w = Rotation.from_matrix(T_base_tcp[:3, :3]).as_quat()
         quat = np.array([w, x, y, z]) * (1.0 if w >= 0 else -1.0)  # one sign of q == -q: w >= 0
         state = np.concatenate(
@@ -271,9 +273,9 @@ def replay_episode(world, arm, gripper, action: np.ndarray, fps: int) -> np.ndar
         (n, 6) float64 measured joint positions [rad] at the ticks (row 0: before any step).
 
     Between ticks the arm's set-point follows a monotone cubic (PCHIP) through the recorded set-points, with
-    its speed and acceleration as feed-forward (`SimArm.servo`); a parallel jaw's target opening moves linearly
-    between ticks; force limits and a suction cup's vacuum switch at the start of the period in which the
-    recording saw them change (the recording only knows the period, not the step).
+    its speed and acceleration as feed-forward (`SimArm.servo`); a parallel jaw's target opening moves
+    linearly between ticks; force limits and a suction cup's vacuum switch at the start of the period in which
+    the recording saw them change (the recording only knows the period, not the step).
     """
     action = np.asarray(action, dtype=np.float64)
     if action.ndim != 2 or action.shape[1] != len(ACTION_NAMES) or len(action) < 1:
