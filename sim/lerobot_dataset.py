@@ -69,9 +69,10 @@ DEFAULT_FEATURES: dict[str, dict[str, Any]] = {
 #: lerobot's quantiles of every feature (`compute_stats.DEFAULT_QUANTILES`), keys q01 .. q99.
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
 #: Video encoding: lerobot's defaults (`encode_video_frames`: SVT-AV1, yuv420p, a key frame every 2 frames so
-#: any frame decodes fast, crf 30); H.264 where this PyAV has no SVT-AV1 encoder.
+#: any frame decodes fast, crf 30); preset 8, as SVT-AV1 warns that its presets 10 and up are for automated
+#: pipelines and may show artefacts. H.264 where this PyAV has no SVT-AV1 encoder.
 VIDEO_CODECS = ("libsvtav1", "libx264")
-_VIDEO_OPTIONS = {"libsvtav1": {"g": "2", "crf": "30", "preset": "12"}, "libx264": {"g": "2", "crf": "23"}}
+_VIDEO_OPTIONS = {"libsvtav1": {"g": "2", "crf": "30", "preset": "8"}, "libx264": {"g": "2", "crf": "23"}}
 
 
 def _sample_indices(n: int) -> np.ndarray:
@@ -148,9 +149,9 @@ class _VideoFile:
     def __init__(self, path: Path, fps: int, width: int, height: int, codec: str):
         import av
 
-        # SVT-AV1 prints its whole configuration to stderr at every encoder start unless told to keep to
-        # warnings and errors (it reads this once, when its first encoder starts)
-        os.environ.setdefault("SVT_LOG", "2")
+        # SVT-AV1 prints its configuration and warnings to stderr at every encoder start unless told to keep
+        # to errors (it reads this once, when its first encoder starts)
+        os.environ.setdefault("SVT_LOG", "1")
         path.parent.mkdir(parents=True, exist_ok=True)
         self.path = path
         self.container = av.open(str(path), mode="w")
