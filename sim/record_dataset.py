@@ -80,3 +80,85 @@ class EpisodeSink:
         if self._writer is not None:
             self._writer.close()
         atexit.unregister(self.close)
+
+
+def check_dataset(root: str | Path, replay: bool = True, tol_rad: float = 2e-3) -> dict:
+    """Read a `--record` dataset back as lerobot does and check it: the frames with Hugging Face `datasets`
+    (counts, timestamps k / fps, indices), the episodes meta (frame and video ranges), every video with PyAV
+    (one frame per dataset frame, each episode's frames at from_timestamp + k / fps within lerobot's 1e-4 s);
+    with `replay`, each episode's actions replayed in its scene and seed (`sim.recording.replay_in_scene`)
+    against its recorded joints. Returns a report; raises InvalidInputError on the first mismatch."""
+    import json
+
+    import numpy as np
+
+    from prompose_grasp._optional import require
+
+    datasets = require("datasets", extra="test")
+    av = require("av", extra="record")
+    root = Path(root)
+    info = json.loads((root / "meta" / "info.json").read_text())
+    fps = int(info["fps"])
+
+    def fail(what: str) -> None:
+        raise InvalidInputError(f"{root}: {what}")
+
+    frames = datasets.load_dataset("parquet", data_files=str(root / "data/*/*.parquet"), split="train")
+    eps = datasets.load_dataset(
+        "parquet", data_files=str(root / "meta/episodes/*/*.parquet"), split="train"
+    ).to_dict()
+    if len(frames) != info["total_frames"] or len(eps["length"]) != info["total_episodes"]:
+        fail(f"{len(frames)} frames / {len(eps['length'])} episodes, info.json says {info['total_frames']} / "
+             f"{info['total_episodes']}")  # fmt: skip
+    ep_col = np.asarray(frames["episode_index"])
+    ts = np.asarray(frames["timestamp"], dtype=np.float64)
+    video_keys = [k for k, f in info["features"].items() if f["dtype"] == "video"]
+    pts: dict[tuple[str, int, int], np.ndarray] = {}  # (key, chunk, file) -> frame times [s]
+    for key in video_keys:
+        for e in range(len(eps["length"])):
+            c, f = eps[f"videos/{key}/chunk_index"][e], eps[f"videos/{key}/file_index"][e]
+            if (key, c, f) not in pts:
+                path = root / info["video_path"].format(video_key=key, chunk_index=c, file_index=f)
+                with av.open(str(path)) as container:
+                    pts[key, c, f] = np.array([float(x.pts * x.time_base) for x in container.decode(video=0)])
+        n_video = sum(len(t) for (k, _, _), t in pts.items() if k == key)
+        if n_video != len(frames):
+            fail(f"{key}: {n_video} video frames for {len(frames)} dataset frames")
+    report: dict = {"episodes": len(eps["length"]), "frames": len(frames), "fps": fps, "replay_max_rad": []}
+    action = np.asarray(frames["action"], dtype=np.float64)
+    state = np.asarray(frames["observation.state"], dtype=np.float64)
+    for e, n in enumerate(eps["length"]):
+        lo, hi = eps["dataset_from_index"][e], eps["dataset_to_index"][e]
+        if hi - lo != n or not np.all(ep_col[lo:hi] == e):
+            fail(f"episode {e}: rows {lo}:{hi} are not its {n} frames")
+        if np.max(np.abs(ts[lo:hi] - np.arange(n) / fps)) > 1e-4:
+            fail(f"episode {e}: timestamps are not k / {fps}")
+        for key in video_keys:
+            t0 = eps[f"videos/{key}/from_timestamp"][e]
+            if abs(eps[f"videos/{key}/to_timestamp"][e] - t0 - n / fps) > 1e-4:
+                fail(f"episode {e}: {key} range is not {n} frames long")
+            times = pts[key, eps[f"videos/{key}/chunk_index"][e], eps[f"videos/{key}/file_index"][e]]
+            k0 = round(t0 * fps)
+            if len(times) < k0 + n or np.max(np.abs(times[k0 : k0 + n] - (t0 + np.arange(n) / fps))) > 1e-4:
+                fail(f"episode {e}: {key} frames are not at from_timestamp + k / {fps}")
+        if replay:
+            from sim.recording import replay_in_scene
+
+            q = replay_in_scene(eps["scene"][e], eps["seed"][e], action[lo:hi], fps)
+            err = float(np.max(np.abs(q - state[lo:hi, :6])))
+            report["replay_max_rad"].append(err)
+            if err > tol_rad:
+                fail(f"episode {e}: replayed joints {err:.2e} rad off the recorded ones (tol {tol_rad})")
+    report["successes"] = int(sum(bool(s) for s in eps.get("success", [])))
+    return report
+
+
+if __name__ == "__main__":
+    import argparse
+    import json as _json
+
+    p = argparse.ArgumentParser(prog="python -m sim.record_dataset", description=check_dataset.__doc__)
+    p.add_argument("root", help="a dataset written with --record")
+    p.add_argument("--no-replay", action="store_true", help="skip replaying the actions")
+    a = p.parse_args()
+    print(_json.dumps(check_dataset(a.root, replay=not a.no_replay), indent=2))

@@ -195,3 +195,24 @@ def test_bad_input(tmp_path):
             w.add_episode("task", frames)
         with pytest.raises(InvalidInputError, match="task"):
             w.add_episode("", frames)
+
+
+def test_check_dataset_accepts_it_and_catches_a_bad_range(dataset, tmp_path):
+    import shutil
+
+    import pyarrow.parquet as pq
+
+    from sim.record_dataset import check_dataset
+
+    root, _ = dataset
+    report = check_dataset(root, replay=False)
+    assert (report["episodes"], report["frames"], report["successes"]) == (3, sum(LENGTHS), 2)
+    bad = tmp_path / "bad"
+    shutil.copytree(root, bad)
+    path = bad / "meta/episodes/chunk-000/file-000.parquet"
+    table = pq.read_table(path)
+    col = table.column_names.index("videos/observation.images.front/from_timestamp")
+    shifted = [t + 1.0 / FPS for t in table.column(col).to_pylist()]  # starts one frame late
+    pq.write_table(table.set_column(col, table.schema.field(col), [shifted]), path)
+    with pytest.raises(InvalidInputError, match="range is not 23 frames long"):
+        check_dataset(bad, replay=False)

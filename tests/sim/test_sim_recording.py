@@ -148,6 +148,9 @@ def test_bench_pick_record_reads_back_and_replays(tmp_path):
     for key in ("front", "wrist"):
         with av.open(str(root / f"videos/observation.images.{key}/chunk-000/file-000.mp4")) as c:
             assert sum(1 for _ in c.decode(video=0)) == n
+    from sim.record_dataset import check_dataset
+
+    assert check_dataset(root, replay=False)["episodes"] == 1
     q = replay_in_scene(eps["scene"][0], eps["seed"][0], np.asarray(ds["action"]), 20)
     err = np.abs(q - np.asarray(ds["observation.state"])[:, :6])
     assert err.max() < REPLAY_TOL_RAD, f"max joint error {err.max():.2e} rad"
