@@ -36,6 +36,7 @@ from scipy.spatial.transform import Rotation
 
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.geometry.se3 import make_T
+from prompose_grasp.robot.interfaces import ProtectiveStopError
 
 __all__ = [
     "ACTION_NAMES",
@@ -289,19 +290,28 @@ def replay_episode(world, arm, gripper, action: np.ndarray, fps: int) -> np.ndar
     q_out[0] = arm.joint_positions()
     if n == 1:
         return q_out
-    t_ticks = np.arange(n) * every * dt
-    spline = PchipInterpolator(t_ticks, action[:, :6], axis=0)
-    d1, d2 = spline.derivative(1), spline.derivative(2)
+    spline = PchipInterpolator(np.arange(n) * every * dt, action[:, :6], axis=0)
+    t = np.arange(1, (n - 1) * every + 1) * dt  # every step's end time
+    q, qd, qdd = spline(t), spline(t, 1), spline(t, 2)
     linear_jaw = world.robot.gripper == "parallel_jaw"
-    for k in range(1, n):
-        t = t_ticks[k - 1] + np.arange(1, every + 1) * dt  # (every,) the period's step end times
-        q, qd, qdd = spline(t), d1(t), d2(t)
-        for j in range(every):
-            frac = (j + 1) / every
-            cmd = (1 - frac) * action[k - 1, 6] + frac * action[k, 6] if linear_jaw else action[k, 6]
-            gripper.apply_command(cmd, action[k, 7])
-            arm.servo(q[j], qd[j], qdd[j])
-        q_out[k] = arm.joint_positions()
+    s, tick = 0, 1  # steps taken, next tick to sample
+    while s < len(t):
+        k = s // every + 1  # the step ends in the period (k - 1, k]
+        frac = (s - (k - 1) * every + 1) / every
+        cmd = (1 - frac) * action[k - 1, 6] + frac * action[k, 6] if linear_jaw else action[k, 6]
+        gripper.apply_command(cmd, action[k, 7])
+        before = arm.timing().steps
+        try:
+            arm.servo(q[s], qd[s], qdd[s])
+        except ProtectiveStopError:
+            # The recording met the same stop (its set-points then hold the arm where it stopped): the stop
+            # held the arm for a few steps; go on from there, as the loop did after it.
+            log.info("replay: protective stop at %.3f s; unlocked, replay continues", t[s])
+            arm.unlock_protective_stop()
+        s += arm.timing().steps - before
+        while tick < n and tick * every <= s:
+            q_out[tick] = arm.joint_positions()
+            tick += 1
     return q_out
 
 

@@ -12,6 +12,7 @@ import pytest
 from prompose_grasp.errors import InvalidInputError
 from prompose_grasp.pipeline.cell import make_cell
 from sim.cell import SimCellConfig
+from sim.record_dataset import REPLAY_TOL_P95_RAD, REPLAY_TOL_RAD
 from sim.recording import (
     ACTION_NAMES,
     STATE_NAMES,
@@ -27,13 +28,9 @@ pytestmark = pytest.mark.sim
 
 SCENE = Path(__file__).resolve().parents[2] / "sim" / "scenes" / "tabletop_household.yaml"
 SEED = 3
-#: Replay tolerance [rad]. The replay servoes a PCHIP through the 20 Hz set-points where the recording had
-#: the 500 Hz trapezoid profile; at a profile's corners (start / end of an acceleration, up to 2-4 rad/s^2)
-#: that interpolation is off by ~a dt^2 / 8 ~ 1e-3 rad for a few ms, of which the servo follows a fraction;
-#: measured: 9e-5 rad on this scripted episode and 2e-4 rad on bench-pick episodes. 2e-3 rad is 0.1 degrees
-#: (about 1.5 mm at the TCP of a UR5e's 0.85 m reach): a replay that lost a grasp or hit something would be
-#: centimetres off.
-REPLAY_TOL_RAD = 2e-3
+# The replay tolerances (REPLAY_TOL_RAD per frame, REPLAY_TOL_P95_RAD for 95 % of frames) and their reasons:
+# `sim.record_dataset`. Measured: 9e-5 rad on this scripted episode, 3.5e-3 / 1.7e-4 rad
+# over 20 bench-pick episodes.
 
 
 def _scripted_episode(world, cell, recorder: EpisodeRecorder | None):
@@ -103,8 +100,9 @@ def test_replay_reproduces_the_joint_trajectory(recorded):
     episode = recorded[0]
     q = replay_in_scene(SCENE, SEED, episode.action, episode.fps)
     assert q.shape == (episode.num_frames, 6)
-    err = np.abs(q - episode.state[:, :6])
-    assert err.max() < REPLAY_TOL_RAD, f"max joint error {err.max():.2e} rad at frame {err.max(1).argmax()}"
+    err = np.abs(q - episode.state[:, :6]).max(axis=1)
+    assert err.max() < REPLAY_TOL_RAD, f"max joint error {err.max():.2e} rad at frame {err.argmax()}"
+    assert np.quantile(err, 0.95) < REPLAY_TOL_P95_RAD
 
 
 def test_bad_input():
@@ -152,5 +150,6 @@ def test_bench_pick_record_reads_back_and_replays(tmp_path):
 
     assert check_dataset(root, replay=False)["episodes"] == 1
     q = replay_in_scene(eps["scene"][0], eps["seed"][0], np.asarray(ds["action"]), 20)
-    err = np.abs(q - np.asarray(ds["observation.state"])[:, :6])
+    err = np.abs(q - np.asarray(ds["observation.state"])[:, :6]).max(axis=1)
     assert err.max() < REPLAY_TOL_RAD, f"max joint error {err.max():.2e} rad"
+    assert np.quantile(err, 0.95) < REPLAY_TOL_P95_RAD
