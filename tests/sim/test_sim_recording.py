@@ -10,8 +10,12 @@ import numpy as np
 import pytest
 
 from prompose_grasp.errors import InvalidInputError
+from prompose_grasp.geometry.se3 import make_T
 from prompose_grasp.pipeline.cell import make_cell
+from sim.arm import SimArm
 from sim.cell import SimCellConfig
+from sim.grippers import SuctionGripper
+from sim.objects import make_object
 from sim.record_dataset import REPLAY_TOL_P95_RAD, REPLAY_TOL_RAD
 from sim.recording import (
     ACTION_NAMES,
@@ -22,7 +26,9 @@ from sim.recording import (
     replay_episode,
     replay_in_scene,
 )
+from sim.robot_scene import add_robot
 from sim.scene_file import build_scene, load_scene
+from sim.world import SceneBuilder, upright_pose
 
 pytestmark = pytest.mark.sim
 
@@ -122,6 +128,54 @@ def test_bad_input():
                 EpisodeRecorder(world, cell.arm, cell.gripper, {"front": "nope"})
             with pytest.raises(InvalidInputError, match="action must be"):
                 replay_episode(world, cell.arm, cell.gripper, np.zeros((3, 7)), 20)
+
+
+def _suction_world():
+    """A UR10e with a suction cup and a 1.5 kg carton on a table in front of it (no cameras)."""
+    b = SceneBuilder("suction")
+    b.add_floor()
+    table = b.add_table()
+    R = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    add_robot(b, "ur10e", make_T(R, [0.0, -0.55, 0.75]), gripper="suction")
+    asset = make_object("carton", params={"width_m": 0.3, "height_m": 0.2, "depth_m": 0.25})
+    b.add_object(
+        asset, "obj", upright_pose(asset, table, (0.0, -0.1)), density_kg_m3=1.5 / (0.3 * 0.2 * 0.25)
+    )
+    world = b.build()
+    world.settle()
+    return world
+
+
+def test_suction_episode_replays_with_its_vacuum():
+    """Press the cup on the carton's top, vacuum on, lift 15 cm, vacuum off: replayed up to the vacuum going
+    off, the joints follow the recording and the carton hangs on the cup where the recording lifted it."""
+    R_down = np.diag([1.0, -1.0, -1.0])
+    world = _suction_world()
+    with world, SimArm(world) as arm, SuctionGripper(world) as cup:
+        top = (world.robot.T_base_world @ world.T_world_obj("obj"))[:3, 3] + np.array([0.0, 0.0, 0.1])
+        T_above = make_T(R_down, top + np.array([0.0, 0.0, 0.15]))
+        rec = EpisodeRecorder(world, arm, cup, {})
+        rec.start()
+        arm.move_joints(arm.robot.ik(T_above, q_seed=arm.joint_positions(), frame="tcp").q, 1.0, 2.0)
+        press = make_T(R_down, top - np.array([0.0, 0.0, 0.002]))  # the cup pressed on by 2 mm
+        arm.move_linear(press, 0.05, 0.5)
+        assert cup.close(100.0)
+        arm.move_linear(T_above, 0.3, 1.0)
+        lifted_z = world.T_world_obj("obj")[2, 3]
+        cup.open()
+        episode = rec.stop()
+    vacuum = episode.action[:, 6]
+    assert set(np.unique(vacuum)) == {0.0, 1.0} and episode.state[:, 14].max() == 1.0
+    off = len(vacuum) - 1 - int(np.argmax(vacuum[::-1] > 0.5))  # the last frame with the vacuum on
+    world = _suction_world()
+    with world, SimArm(world) as arm, SuctionGripper(world) as cup:
+        # up to the vacuum going off: the carton hangs on the cup where the recording lifted it
+        q = replay_episode(world, arm, cup, episode.action[: off + 1], episode.fps)
+        err = np.abs(q - episode.state[: off + 1, :6]).max(axis=1)
+        assert err.max() < REPLAY_TOL_RAD and np.quantile(err, 0.95) < REPLAY_TOL_P95_RAD
+        assert cup.grasp_detected()
+        # 2 mm: the weld's sag under a slightly different load history
+        assert world.T_world_obj("obj")[2, 3] == pytest.approx(lifted_z, abs=2e-3)
 
 
 @pytest.mark.slow
