@@ -180,8 +180,9 @@ def test_suction_episode_replays_with_its_vacuum():
 
 @pytest.mark.slow
 def test_bench_pick_record_reads_back_and_replays(tmp_path):
-    """One bench-pick episode with --record: the dataset reads back with `datasets` and PyAV, and its
-    actions replayed in the same scene and seed reproduce its joints."""
+    """One bench-pick episode with --record: the dataset reads back with `datasets` and PyAV, the episode is
+    the one run without recording, and its actions replayed in the same scene and seed reproduce its
+    joints."""
     datasets = pytest.importorskip("datasets")
     av = pytest.importorskip("av")
     from sim.bench_pick import run_benchmark
@@ -203,6 +204,10 @@ def test_bench_pick_record_reads_back_and_replays(tmp_path):
     from sim.record_dataset import check_dataset
 
     assert check_dataset(root, replay=False)["episodes"] == 1
+    # the same episode without recording: the same outcome at the same sim time (recording changes nothing)
+    plain = run_benchmark("tabletop_household", 1, seed0=0, progress=False)["rows"][0]
+    recorded = report["rows"][0]
+    assert (plain["reason"], plain["sim_time_s"]) == (recorded["reason"], recorded["sim_time_s"])
     q = replay_in_scene(eps["scene"][0], eps["seed"][0], np.asarray(ds["action"]), 20)
     err = np.abs(q - np.asarray(ds["observation.state"])[:, :6]).max(axis=1)
     assert err.max() < REPLAY_TOL_RAD, f"max joint error {err.max():.2e} rad"
