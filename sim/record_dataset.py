@@ -15,7 +15,7 @@ import logging
 from pathlib import Path
 
 from prompose_grasp.errors import InvalidInputError
-from sim.recording import RecordConfig, RecordedEpisode, lerobot_features
+from sim.recording import RecordConfig, RecordedEpisode
 
 __all__ = ["EpisodeSink"]
 
@@ -36,7 +36,7 @@ class EpisodeSink:
             raise InvalidInputError(f"--record folder {str(self.root)!r} exists and is not empty")
         self.config = config or RecordConfig()
         self._writer = None
-        self._cameras: tuple[str, ...] | None = None
+        self._features: dict | None = None
         atexit.register(self.close)
 
     @property
@@ -58,19 +58,16 @@ class EpisodeSink:
         if recording is None or recording.num_frames == 0:
             log.warning("episode %r (seed %s) has no recording; not written", task, seed)
             return None
-        cameras = tuple(recording.images)
+        features = recording.lerobot_features()
         if self._writer is None:
-            self._cameras = cameras
+            self._features = features
             self._writer = LeRobotDatasetWriter(
-                self.root,
-                recording.fps,
-                lerobot_features(list(cameras), self.config),
-                robot_type=f"{recording.robot}_{recording.gripper}",
+                self.root, recording.fps, features, robot_type=f"{recording.robot}_{recording.gripper}"
             )
-        elif cameras != self._cameras:
+        elif features != self._features or recording.fps != self._writer.fps:
             raise InvalidInputError(
-                f"episode cameras {cameras} differ from the dataset's {self._cameras}; record one scene kind "
-                "per dataset"
+                f"episode features {sorted(features)} at {recording.fps} fps differ from the dataset's "
+                f"{sorted(self._features)} at {self._writer.fps} fps; record one scene kind per dataset"
             )
         extra = {"success": bool(success), "reason": str(reason), "seed": -1 if seed is None else int(seed)}
         extra["scene"] = str(scene)

@@ -16,7 +16,8 @@ the positions (rendering on the world's own data would recompute its body poses 
 cup's load check reads), so an episode is the same with recording on or off. The defaults keep
 recording cheap on CPUs: 20 Hz (a usual control rate of lerobot's arm datasets; the 500 Hz physics rate is a
 whole multiple of it), 160 x 120 images without shadows (a few ms per image with software OpenGL,
-`RecordConfig.shadows`), so a 30 s episode adds 600 frames and a few seconds of rendering; all settable.
+`RecordConfig.shadows`): a tabletop place episode (~13.6 s of sim time, 270 frames) took ~4 s more wall
+time with recording (~14 ms a frame: two renders, state, encoding); all settable.
 
 `replay_episode` drives a freshly built copy of the scene with the recorded actions through `SimArm.servo`
 and the gripper's `apply_command`, interpolating the set-points between ticks (monotone cubic, as
@@ -27,7 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
@@ -45,8 +46,9 @@ __all__ = [
     "EpisodeRecorder",
     "RecordConfig",
     "RecordedEpisode",
-    "lerobot_features",
+    "recorded_cameras",
     "replay_episode",
+    "replay_in_scene",
 ]
 
 log = logging.getLogger(__name__)
@@ -101,7 +103,7 @@ class RecordedEpisode:
         state: (n, len(STATE_NAMES)) float32. action: (n, len(ACTION_NAMES)) float32.
         images: {camera key ("front", "wrist"): (n, H, W, 3) uint8 RGB}.
         cameras: {camera key: the scene camera's name}.
-        gripper: the gripper kind ("parallel_jaw" | "suction").
+        gripper: the gripper kind ("parallel_jaw" | "suction"). robot: the arm's model ("ur5e").
     """
 
     fps: int
@@ -112,32 +114,30 @@ class RecordedEpisode:
     cameras: dict[str, str]
     gripper: str
     robot: str = ""
-    extra: dict = field(default_factory=dict)
 
     @property
     def num_frames(self) -> int:
         return len(self.state)
 
     def lerobot_frames(self) -> dict[str, np.ndarray]:
-        """The episode as the frames of `lerobot_features`."""
+        """The episode as the frames of `lerobot_features()`."""
         out = {"observation.state": self.state, "action": self.action}
         out.update({f"observation.images.{k}": v for k, v in self.images.items()})
         return out
 
-
-def lerobot_features(cameras: list[str], config: RecordConfig) -> dict[str, dict]:
-    """The dataset features of a recording with camera keys `cameras` (`LeRobotDatasetWriter`)."""
-    features = {
-        "observation.state": {"dtype": "float32", "shape": [len(STATE_NAMES)], "names": list(STATE_NAMES)},
-        "action": {"dtype": "float32", "shape": [len(ACTION_NAMES)], "names": list(ACTION_NAMES)},
-    }
-    for key in cameras:
-        features[f"observation.images.{key}"] = {
-            "dtype": "video",
-            "shape": [config.height, config.width, 3],
-            "names": ["height", "width", "channels"],
+    def lerobot_features(self) -> dict[str, dict]:
+        """The LeRobot dataset features of this recording (`sim.lerobot_dataset.LeRobotDatasetWriter`)."""
+        features = {
+            key: {"dtype": "float32", "shape": [len(names)], "names": list(names)}
+            for key, names in (("observation.state", STATE_NAMES), ("action", ACTION_NAMES))
         }
-    return features
+        for key, images in self.images.items():
+            features[f"observation.images.{key}"] = {
+                "dtype": "video",
+                "shape": list(images.shape[1:]),
+                "names": ["height", "width", "channels"],
+            }
+        return features
 
 
 def recorded_cameras(world, fixed_camera: str) -> dict[str, str]:
