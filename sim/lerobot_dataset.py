@@ -1,10 +1,10 @@
-"""Episodes written as a LeRobot dataset, codebase version v3.0 (the layout of lerobot 0.4.x), no lerobot.
+"""Episodes written as a LeRobot dataset, codebase version v3.0 as lerobot 0.4.2 writes it, without lerobot.
 
 lerobot itself is no dependency (its releases pin torch below the version here and pull torchvision, diffusers
 and wandb); this module writes its documented v3.0 layout with the libraries lerobot uses underneath: pyarrow
 parquet files (with the Hugging Face `datasets` feature schema in their metadata, as `datasets` writes it),
-PyAV mp4 videos and lerobot's meta JSON / parquet files. Layout, checked against huggingface/lerobot's
-`src/lerobot/datasets/{utils,lerobot_dataset,video_utils,compute_stats}.py` (`CODEBASE_VERSION = "v3.0"`)::
+PyAV mp4 videos and lerobot's meta JSON / parquet files. Layout, defaults and stats follow lerobot 0.4.2's
+`lerobot/datasets/{utils,lerobot_dataset,video_utils,compute_stats}.py` (`CODEBASE_VERSION = "v3.0"`)::
 
     ROOT/meta/info.json                            codebase_version, fps, features, path templates, totals
     ROOT/meta/stats.json                           min / max / mean / std / count / q01..q99 per feature
@@ -14,7 +14,7 @@ PyAV mp4 videos and lerobot's meta JSON / parquet files. Layout, checked against
     ROOT/data/chunk-{c:03d}/file-{f:03d}.parquet   one row per frame, many episodes per file
     ROOT/videos/{video_key}/chunk-{c:03d}/file-{f:03d}.mp4   many episodes per file, one after the other
 
-Files roll over at lerobot's default sizes (data 100 MB, video 500 MB, 1000 files per chunk). Frame k of an
+Files roll over at lerobot's default sizes (data 100 MB, video 200 MB, 1000 files per chunk). Frame k of an
 episode has `timestamp` k / fps; in its video file it is the frame at `from_timestamp + timestamp`.
 """
 
@@ -46,11 +46,12 @@ log = logging.getLogger(__name__)
 
 #: The dataset layout version written (lerobot's `CODEBASE_VERSION`).
 CODEBASE_VERSION = "v3.0"
-#: The lerobot releases whose layout this is (v3.0 datasets came with lerobot 0.4.0).
-LEROBOT_VERSION = "0.4.x"
+#: The lerobot release whose layout and defaults this follows (checked against its wheel); v3.0 datasets came
+#: with lerobot 0.4.0.
+LEROBOT_VERSION = "0.4.2"
 DEFAULT_CHUNK_SIZE = 1000  # files per chunk folder
 DEFAULT_DATA_FILE_SIZE_IN_MB = 100
-DEFAULT_VIDEO_FILE_SIZE_IN_MB = 500
+DEFAULT_VIDEO_FILE_SIZE_IN_MB = 200
 CHUNK_FILE = "chunk-{chunk_index:03d}/file-{file_index:03d}"
 DATA_PATH = "data/" + CHUNK_FILE + ".parquet"
 VIDEO_PATH = "videos/{video_key}/" + CHUNK_FILE + ".mp4"

@@ -85,7 +85,7 @@ def test_info_json_is_lerobot_v3_layout(dataset):
     assert (info["chunks_size"], info["data_files_size_in_mb"], info["video_files_size_in_mb"]) == (
         1000,
         100,
-        500,
+        200,
     )
     feats = info["features"]
     assert set(feats) == set(FEATURES) | {"timestamp", "frame_index", "episode_index", "index", "task_index"}
