@@ -245,6 +245,9 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="scene and sensor-noise seed (default 0)")
     p.add_argument("--video", action="store_true", help="also record episode.mp4 (slower)")
     _add_rerun(p)
+    p.add_argument(
+        "--record", default=None, metavar="DIR", help="also write the episode as a LeRobot dataset into DIR"
+    )
     p.set_defaults(func=_run_demo)
 
 
@@ -265,6 +268,9 @@ def _run_demo(args: argparse.Namespace) -> int:
         cmd.append("--video")
     if args.rerun is not None:
         cmd += ["--rerun", *args.rerun]
+    if args.record is not None:
+        _check_output_folder(args.record, "--record")
+        cmd += ["--record", args.record]
     return subprocess.call(cmd)
 
 
@@ -392,6 +398,9 @@ def _add_bench_pick(sub: argparse._SubParsersAction) -> None:
         "--ray", default=None, metavar="ADDRESS", help="episodes as Ray tasks: local:N | auto | HOST:PORT"
     )
     p.add_argument("--resume", action="store_true", help="skip the episodes JSON.sweep.jsonl lists as done")
+    p.add_argument(
+        "--record", default=None, metavar="DIR", help="also write the episodes as a LeRobot dataset into DIR"
+    )
     p.set_defaults(func=_run_bench_pick)
 
 
@@ -411,8 +420,10 @@ def _run_bench_pick(args: argparse.Namespace) -> int:
             cmd.append("--" + flag.replace("_", "-"))
     if args.resume:
         cmd.append("--resume")
+    if args.record is not None:
+        _check_output_folder(args.record, "--record")
     for flag, value in (("--prompts", args.prompts), ("--json", args.json_out), ("--out", args.out),
-                        ("--ray", args.ray)):  # fmt: skip
+                        ("--ray", args.ray), ("--record", args.record)):  # fmt: skip
         if value:
             cmd += [flag, value]
     return subprocess.call(cmd)

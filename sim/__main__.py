@@ -4,13 +4,15 @@ Each camera gives a row: colour (with ground-truth boxes and names when --boxes)
 the camera's noise model.
 
 `python -m sim pick --scene FILE --command "..." --out DIR --seed N [--video] [--rerun FILE.rrd | spawn |
-connect URL]`: one closed-loop language pick-and-place episode (`sim.pick`), writing DIR/summary.json,
-overlay_0.png and optionally episode.mp4 and a rerun recording (extra `viz`; docs/recording.md).
+connect URL] [--record DATASET]`: one closed-loop language pick-and-place episode (`sim.pick`), writing
+DIR/summary.json, overlay_0.png and optionally episode.mp4, a rerun recording (extra `viz`) and the episode
+as a LeRobot dataset (extra `record`; both in docs/recording.md).
 
 `python -m sim bench-pick --scenario tabletop_household|logistics_pallet|logistics_palletise|real_meshes|
-lookalikes --episodes N [--oracle-mask] [--real-meshes] [--place] [--prompts colour+name|name] [--json OUT]`:
-the closed-loop success rate over seeded episodes, with wrong-object successes and ambiguous refusals
-accounted (`sim.bench_pick`).
+lookalikes --episodes N [--oracle-mask] [--real-meshes] [--place] [--prompts colour+name|name] [--json OUT]
+[--record DATASET [--record-fps 20] [--record-size 160x120]]`: the closed-loop success rate over seeded
+episodes, with wrong-object successes and ambiguous refusals accounted (`sim.bench_pick`); --record writes
+the episodes as a LeRobot v3.0 dataset (docs/recording.md).
 
 `python -m sim soak-track [--n 10000] [--json OUT]` and `python -m sim soak-episodes [--episodes 200]
 [--json OUT]`: memory (RSS, tracemalloc) and time per step over a 10,000-frame track and over back-to-back
@@ -64,23 +66,37 @@ def _pick(args: argparse.Namespace) -> int:
     def show(event) -> None:
         print(f"[{100 * event.fraction:3.0f}%] {event.stage:8s} {event.message}", flush=True)
 
+    from sim.bench_pick import record_config_from_args
+
     recorder = None
     if args.rerun is not None:
         from prompose_grasp.viz.target import RerunTarget
 
         target = RerunTarget.parse(args.rerun)  # checked before the scene loads
+    record = record_config_from_args(args)
+    sink = None
+    if record is not None:
+        from sim.record_dataset import EpisodeSink
+
+        sink = EpisodeSink(args.record, record)  # checks the folder before anything runs
+    if args.rerun is not None:
         from prompose_grasp.viz.rerun_recorder import RerunRecorder
 
         recorder = RerunRecorder.open(target)
     try:
         result = run_episode(
             args.scene, args.command, args.out, seed=args.seed, video=args.video, on_event=show,
-            recorder=recorder,
+            recorder=recorder, record=record,
         )  # fmt: skip
     finally:
         if recorder is not None:
             recorder.close()
             print(f"rerun recording: {target}")
+    if sink is not None:
+        s = result.summary
+        sink.add(result.recording, args.command, s["success"], s["outcome"]["reason"], args.seed, args.scene)
+        sink.close()
+        print(f"recorded the episode ({result.recording.num_frames} frames) into {args.record}")
     if result.summary["outcome"]["reason"] == "not_understood":
         print(f"command not understood: {result.summary['outcome']['message']}", file=sys.stderr)
         return 2
@@ -120,7 +136,9 @@ def main(argv: list[str] | None = None) -> int:
         metavar="TARGET",
         help="record the episode for the rerun viewer: FILE.rrd | spawn | connect [URL] (extra viz)",
     )
-    from sim.bench_pick import add_arguments
+    from sim.bench_pick import add_arguments, add_record_arguments
+
+    add_record_arguments(pick)
 
     bench = sub.add_parser("bench-pick", help="closed-loop success rate over seeded episodes")
     add_arguments(bench)

@@ -218,6 +218,7 @@ class SimArm(Arm):
         self._forces: deque[float] = deque(maxlen=max(1, round(FORCE_WINDOW_S / self._dt)))
         self._f6 = np.zeros(6)
         self._contact_note = ""
+        self._q_cmd: np.ndarray | None = None  # (6,) the set-point last commanded, before feed-forward [rad]
 
     # ------------------------------------------------------------------ device
     def connect(self) -> None:
@@ -271,6 +272,11 @@ class SimArm(Arm):
     def joint_targets(self) -> np.ndarray:
         """(6,) float64 servo set-points [rad] (where the arm is told to be)."""
         return self.world.data.ctrl[self.info.actuator_ids].copy()
+
+    def commanded_joint_positions(self) -> np.ndarray:
+        """(6,) float64 the joint set-point the motion commands gave the servos last [rad], without the
+        velocity feed-forward advance `joint_targets` includes (the servo targets before any command)."""
+        return self.joint_targets() if self._q_cmd is None else self._q_cmd.copy()
 
     def T_world_flange(self) -> np.ndarray:
         """(4, 4) flange pose in the world from the simulation state [m]."""
@@ -367,6 +373,20 @@ class SimArm(Arm):
         self._require()
         self._stop.set()
 
+    def servo(self, q: ArrayLike, qd: ArrayLike, qdd: ArrayLike) -> None:
+        """One control period of a set-point stream: servo to `q` (6,) [rad] with speed `qd` [rad/s] and
+        acceleration `qdd` [rad/s^2] feed-forward (as the motion commands do), and step the physics once.
+
+        For replaying recorded set-points (`sim.recording.replay_episode`); nothing is validated here, the
+        recording was. Raises `ProtectiveStopError` as the motion commands do."""
+        self._require()
+        self._require_unlocked("servo")
+        self._apply(*(np.asarray(v, dtype=np.float64).reshape(6) for v in (q, qd, qdd)))
+        fault = self._step()
+        self._steps += 1
+        if fault is not None:
+            self._protective_stop(fault)
+
     # ------------------------------------------------------------------ execution
     def _require_unlocked(self, what: str) -> None:
         if self.protective_stopped:
@@ -399,6 +419,7 @@ class SimArm(Arm):
         raise `ProtectiveStopError`."""
         d, info = self.world.data, self.info
         d.ctrl[info.actuator_ids] = d.qpos[info.qpos_adr]
+        self._q_cmd = d.qpos[info.qpos_adr].copy()
         d.qfrc_applied[info.dof_adr] = 0.0
         n = round(_STOP_HOLD_S / self._dt)
         self.world.step(n)
@@ -428,6 +449,7 @@ class SimArm(Arm):
 
     def _apply(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> None:
         m, d, info = self.world.model, self.world.data, self.info
+        self._q_cmd = np.array(q, dtype=np.float64)
         d.ctrl[info.actuator_ids] = q + self._ff_gain * qd
         self._vec[info.dof_adr] = qdd
         mujoco.mj_mulM(m, d, self._res, self._vec)  # inertia of the arm (and what it carries rigidly)
@@ -454,6 +476,7 @@ class SimArm(Arm):
                 break
         if fault is None:
             d.ctrl[info.actuator_ids] = q_final
+            self._q_cmd = np.array(q_final, dtype=np.float64)
             d.qfrc_applied[info.dof_adr] = 0.0
             max_steps = round(self.max_settle_s / self._dt)
             for _ in range(max_steps):

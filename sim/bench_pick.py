@@ -375,10 +375,10 @@ def _process_estimator() -> Any:
     return _ESTIMATOR[0]
 
 
-def run_episode_row(spec: EpisodeSpec, estimator: Any = None) -> dict[str, Any]:
+def run_episode_row(spec: EpisodeSpec, estimator: Any = None, sink: Any = None) -> dict[str, Any]:
     """Run one seeded episode and account it (`sim.bench_accounting.judge`): its report row. An unexpected
     exception becomes a `crash:<type>` row. The row depends on `spec` alone (the episode draws from its
-    seed)."""
+    seed). `sink`: a `sim.record_dataset.EpisodeSink` the episode is also written into."""
     from sim.pick import run_episode
 
     estimator = estimator if estimator is not None else _process_estimator()
@@ -415,6 +415,7 @@ def run_episode_row(spec: EpisodeSpec, estimator: Any = None) -> dict[str, Any]:
             estimator=estimator,
             estimator_wrapper=wrap,
             targets=targets,
+            record=None if sink is None else sink.config,
         )
         s = result.summary
         ev = s["evaluation"]
@@ -460,6 +461,10 @@ def run_episode_row(spec: EpisodeSpec, estimator: Any = None) -> dict[str, Any]:
             estimate_size_m=None if s["estimate"] is None else s["estimate"]["size"],
             ground_truth_size_m=None if s["ground_truth"] is None else s["ground_truth"]["size"],
         )
+        if sink is not None:
+            row["record_episode"] = sink.add(
+                result.recording, command, row["success"], row["reason"], seed, str(plan.scene)
+            )
     except Exception as exc:
         log.exception("episode seed %d crashed", seed)
         row.update(
@@ -522,9 +527,14 @@ def run_benchmark(
     resume: bool = False,
     retries: int = 2,
     executor: Any = None,
+    record: str | Path | None = None,
+    record_config: Any = None,
 ) -> dict[str, Any]:
     """Run `episodes` seeded episodes (seeds seed0 .. seed0 + episodes - 1) and summarise them; with
     `json_out` the report so far is rewritten after every episode (a long run can be stopped).
+
+    `record`: also write every episode into a new LeRobot dataset there (`sim.record_dataset`; the command as
+    its task, success and reason per episode), sampled with `record_config` (`sim.recording.RecordConfig`).
 
     `prompts`: "colour+name" (default; "pick up the red banana") or "name" (the bare object name, "pick up
     the banana"; the scene keeps its colours); `lookalikes` always says the product's name.
@@ -536,6 +546,17 @@ def run_benchmark(
     if scenario not in SCENARIOS:
         raise InvalidInputError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
     style = resolve_prompts("real_meshes" if real_meshes else scenario, prompts)
+    sweep = ray is not None or executor is not None or resume
+    if record is not None and sweep:
+        # the dataset is one writer's files: record a shard per process (different --seed0) instead
+        raise InvalidInputError(
+            "--record writes the dataset from this process: run recorded shards without --ray / --resume"
+        )
+    sink = None
+    if record is not None:
+        from sim.record_dataset import EpisodeSink
+
+        sink = EpisodeSink(record, record_config)  # checks the folder before the estimator loads
     meta = {
         "scenario": "real_meshes" if real_meshes else scenario,
         "oracle_mask": oracle_mask,
@@ -549,7 +570,7 @@ def run_benchmark(
                     None if out_dir is None else str(out_dir))
         for i in range(episodes)
     ]  # fmt: skip
-    if ray is not None or executor is not None or resume:
+    if sweep:
         return _run_sweep(specs, meta, json_out, progress, ray, resume, retries, executor)
     from prompose_grasp.perception.estimator import ProMPose
 
@@ -557,7 +578,7 @@ def run_benchmark(
     rows = []
     t_all = time.perf_counter()
     for i, spec in enumerate(specs):
-        row = run_episode_row(spec, estimator)
+        row = run_episode_row(spec, estimator, sink)
         rows.append(row)
         if json_out is not None:
             partial = summarise(rows, meta, time.perf_counter() - t_all)
@@ -570,7 +591,11 @@ def run_benchmark(
                 f"({row['wall_time_s']:.1f} s wall) -> {n_ok}/{len(rows)}",
                 flush=True,
             )
-    return summarise(rows, meta, time.perf_counter() - t_all)
+    report = summarise(rows, meta, time.perf_counter() - t_all)
+    if sink is not None:
+        sink.close()
+        report["record"] = {"root": str(sink.root), "episodes": sink.num_episodes}
+    return report
 
 
 def sweep_file(json_out: str | Path) -> Path:
@@ -722,6 +747,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="skip the episodes that JSON.sweep.jsonl lists as done (needs --json)",
     )
     p.add_argument("--retries", type=int, default=2, help="attempts after the first for a failed episode")
+    add_record_arguments(p)
+
+
+def add_record_arguments(p: argparse.ArgumentParser) -> None:
+    """--record DIR, --record-fps, --record-size (`sim.record_dataset`)."""
+    p.add_argument(
+        "--record",
+        default=None,
+        metavar="DIR",
+        help="also write the episodes as a LeRobot v3.0 dataset into DIR (a new folder): front and wrist "
+        "video, joints, TCP pose, gripper state, commanded actions, the command as task, success and reason",
+    )
+    p.add_argument("--record-fps", type=int, default=20, help="recording control rate [Hz] (default 20)")
+    p.add_argument("--record-size", default="160x120", help="recorded image size WxH (default 160x120)")
+
+
+def record_config_from_args(args: argparse.Namespace):
+    """The `RecordConfig` of --record-fps / --record-size, or None without --record."""
+    if getattr(args, "record", None) is None:
+        return None
+    from sim.recording import RecordConfig
+
+    try:
+        w, h = (int(v) for v in str(args.record_size).lower().split("x"))
+    except ValueError:
+        raise InvalidInputError(f"--record-size must be WxH like 160x120, got {args.record_size!r}") from None
+    return RecordConfig(fps=args.record_fps, width=w, height=h)
 
 
 def run_from_args(args: argparse.Namespace) -> int:
@@ -749,8 +801,12 @@ def run_from_args(args: argparse.Namespace) -> int:
         ray=getattr(args, "ray", None),
         resume=getattr(args, "resume", False),
         retries=getattr(args, "retries", 2),
+        record=getattr(args, "record", None),
+        record_config=record_config_from_args(args),
     )
     print(format_report(report))
+    if report.get("record"):
+        print(f"recorded {report['record']['episodes']} episodes into {report['record']['root']}")
     if args.json_out:
         Path(args.json_out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json_out).write_text(json.dumps(report, indent=2))

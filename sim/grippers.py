@@ -34,6 +34,7 @@ the lip friction, or by `open()`.
 
 from __future__ import annotations
 
+import abc
 import logging
 import math
 
@@ -247,6 +248,16 @@ class _SimGripperBase(Gripper):
             )
         self.world = world
 
+    @abc.abstractmethod
+    def command(self) -> tuple[float, float]:
+        """What the gripper is told now: (command, force limit [N]); the command is the jaw's target opening
+        [m] for a parallel jaw (below 0 while squeezing: the fingers are driven past closed), 1.0 / 0.0 for a
+        suction cup's vacuum on / off. Recorded as the action of an episode (`sim.recording`)."""
+
+    @abc.abstractmethod
+    def apply_command(self, command: float, force_n: float) -> None:
+        """Set what `command()` reads without stepping the world (a recorded action being replayed)."""
+
     def _step_until(self, done, max_time_s: float, check_every: int = 5) -> bool:
         """Step the world until `done()` is true (checked every few steps) or `max_time_s` passed."""
         dt = self.world.model.opt.timestep
@@ -306,6 +317,14 @@ class ParallelJawGripper(_SimGripperBase):
         d.ctrl[self._act] = q_final
         self.world.step(10)
         self._step_until(self._fingers_still, 1.0)
+
+    def command(self) -> tuple[float, float]:
+        d, m = self.world.data, self.world.model
+        return float(np.sum(d.ctrl[self._act])), float(m.actuator_forcerange[self._act[0], 1])
+
+    def apply_command(self, command: float, force_n: float) -> None:
+        self.world.model.actuator_forcerange[self._act] = [-float(force_n), float(force_n)]
+        self.world.data.ctrl[self._act] = float(command) / 2.0  # each finger moves half the opening
 
     def _fingers_still(self) -> bool:
         return bool(np.all(np.abs(self.world.data.qvel[self._vadr]) < 1e-3))  # 1 mm/s: stopped
@@ -393,6 +412,7 @@ class SuctionGripper(_SimGripperBase):
                 self._welds[int(m.eq_obj2id[e])] = e
         self._held_eq: int | None = None
         self._limit_n = self.geometry.max_force_n
+        self._vacuum = False  # the vacuum is switched on (whether or not it holds anything)
 
     def _touching_face_body(self) -> int | None:
         """A free object whose face the cup face touches (normal within the angle limit), or None."""
@@ -411,19 +431,36 @@ class SuctionGripper(_SimGripperBase):
     def open(self) -> None:
         self._require()
         self._release("open()")
+        self._vacuum = False
         self.world.step(25)  # 50 ms: the vacuum vents
 
     def close(self, force: float) -> bool:
         self._require()
         if not (math.isfinite(force) and force > 0):
             raise InvalidInputError(f"holding force must be finite and > 0 N, got {force!r}")
-        self._limit_n = min(float(force), self.geometry.max_force_n)
+        self._switch_on(float(force))
+        self.world.step(25)  # 50 ms: the vacuum builds up (and the load check sees the first steps)
+        return self.grasp_detected()
+
+    def _switch_on(self, force_n: float) -> None:
+        """Vacuum on with holding force `force_n` [N]: hold the face the cup touches now, if any."""
+        self._limit_n = min(force_n, self.geometry.max_force_n)
+        self._vacuum = True
         self.world.forward()
         body = self._touching_face_body()
         if body is not None and self._held_eq is None:
             self._attach(body)
-        self.world.step(25)  # 50 ms: the vacuum builds up (and the load check sees the first steps)
-        return self.grasp_detected()
+
+    def command(self) -> tuple[float, float]:
+        return (1.0 if self._vacuum else 0.0), float(self._limit_n)
+
+    def apply_command(self, command: float, force_n: float) -> None:
+        on = float(command) >= 0.5
+        if on and not self._vacuum:
+            self._switch_on(float(force_n))
+        elif not on and self._vacuum:
+            self._release("vacuum off")
+            self._vacuum = False
 
     def _attach(self, body: int) -> None:
         m, d = self.world.model, self.world.data

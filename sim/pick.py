@@ -51,6 +51,8 @@ class EpisodeResult:
     outcome: PickOutcome
     summary: dict[str, Any]
     out_dir: Path | None
+    #: the episode sampled at a fixed control rate (`sim.recording`), when run with `record`
+    recording: Any = None
 
 
 def _target_name(
@@ -227,6 +229,7 @@ def run_episode(
     wrist: bool = True,
     targets: list[str] | None = None,
     recorder: Recorder | None = None,
+    record: Any = None,
 ) -> EpisodeResult:
     """Build the scene, run the library's closed loop on it, then evaluate against ground truth.
 
@@ -247,6 +250,8 @@ def run_episode(
             judged. Default: found from the command and the scene prompts (`_target_name`).
         recorder: records the episode (`prompose_grasp.viz.RerunRecorder`): the loop's stages, the arm and
             gripper, and (for the default estimator) its grounding and estimates. Not closed here.
+        record: a `sim.recording.RecordConfig`: also sample the loop's run (front and wrist camera, joints,
+            TCP, gripper, commanded actions) at its control rate into `EpisodeResult.recording`.
 
     The summary's `evaluation` also holds `lifted_objects` (every object that rose >= `MIN_LIFT_M`),
     `placed_objects` for place commands (every object that ended inside the place target and did not start
@@ -295,7 +300,16 @@ def run_episode(
             )
             if video_frames is not None:
                 world.add_step_hook(video_frames)
-            outcome = pnp.run(command)
+            sampler = None
+            if record is not None:
+                from sim.recording import EpisodeRecorder, recorded_cameras
+
+                sampler = EpisodeRecorder(world, arm, cell.gripper, recorded_cameras(world, camera), record)
+                sampler.start()
+            try:
+                outcome = pnp.run(command)
+            finally:
+                recording = sampler.stop() if sampler is not None else None
             if video_frames is not None:
                 world.remove_step_hook(video_frames)
             # Let the scene come to rest so a lost object has fallen before it is measured.
@@ -432,4 +446,4 @@ def run_episode(
             if video_frames is not None:
                 summary["video"] = "episode.mp4" if video_frames.write(out / "episode.mp4") else None
             (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    return EpisodeResult(outcome, summary, None if out_dir is None else Path(out_dir))
+    return EpisodeResult(outcome, summary, None if out_dir is None else Path(out_dir), recording)

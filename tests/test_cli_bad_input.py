@@ -156,6 +156,7 @@ def test_run_refuses_an_unwritable_json_before_connecting(tmp_path, capsys, no_w
         (["--scene", "{bad_yaml}"], "not a readable scene file at line"),
         (["--scene", "{list_yaml}"], "holds a mapping"),
         (["--scene", "{file}"], "is .yaml, .yml or .json"),
+        (["--record", "{file}"], "exists and is not a folder"),
     ],
 )
 def test_demo_refuses_bad_flags_before_the_episode(flags, match, tmp_path, capsys, no_work):
@@ -185,7 +186,13 @@ def test_eval_nocs_refuses_an_unwritable_json_and_a_crafted_pickle(tmp_path, cap
 
 @pytest.mark.parametrize(
     ("flags", "match"),
-    [(["--episodes", "0"], "--episodes must be >= 1"), (["--seed0", "-3"], "--seed0 must be >= 0")],
+    [
+        (["--episodes", "0"], "--episodes must be >= 1"),
+        (["--seed0", "-3"], "--seed0 must be >= 0"),
+        (["--record", "{file}"], "exists and is not a folder"),
+    ],
 )
-def test_bench_pick_refuses_bad_counts(flags, match, capsys, no_work):
+def test_bench_pick_refuses_bad_counts(flags, match, tmp_path, capsys, no_work):
+    (tmp_path / "existing.txt").write_text("not a folder")
+    flags = [f.format(file=tmp_path / "existing.txt") for f in flags]
     _refused(["bench-pick", "--scenario", "tabletop_household", *flags], capsys, match)
