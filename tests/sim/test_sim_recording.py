@@ -16,6 +16,7 @@ from sim.arm import SimArm
 from sim.cell import SimCellConfig
 from sim.grippers import SuctionGripper
 from sim.objects import make_object
+from sim.placement import upright_pose
 from sim.record_dataset import REPLAY_TOL_P95_RAD, REPLAY_TOL_RAD
 from sim.recording import (
     ACTION_NAMES,
@@ -27,8 +28,8 @@ from sim.recording import (
     replay_in_scene,
 )
 from sim.robot_scene import add_robot
+from sim.scene_builder import SceneBuilder
 from sim.scene_file import build_scene, load_scene
-from sim.world import SceneBuilder, upright_pose
 
 pytestmark = pytest.mark.sim
 
