@@ -16,7 +16,8 @@ import trimesh
 from grounding_scene import render_scene
 
 from prompose_grasp import InvalidInputError, ObjectNotFoundError, ProMPose
-from prompose_grasp.cli import _overlay_label, main
+from prompose_grasp.cli import main
+from prompose_grasp.cli.perception import overlay_label
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.pose9d import Pose9D
 from prompose_grasp.perception.estimator import EstimatorConfig
@@ -75,8 +76,8 @@ def test_user_mask_skips_grounding_and_keeps_the_object(estimator, frame, scene)
     assert est.pose.iou(scene.gt_poses["box"]) >= MIN_IOU
     assert est.coverage > 0.9  # the box stands in full view: its mask shows all its facing surface
     # the overlay's label says it; a tracked update (no coverage) says nothing of it
-    assert _overlay_label("box", est) == f"box ({est.prior.name}, {round(100 * est.coverage)}% seen)"
-    assert _overlay_label("box", replace(est, coverage=math.nan)) == f"box ({est.prior.name})"
+    assert overlay_label("box", est) == f"box ({est.prior.name}, {round(100 * est.coverage)}% seen)"
+    assert overlay_label("box", replace(est, coverage=math.nan)) == f"box ({est.prior.name})"
     with pytest.raises(InvalidInputError, match="mask must be"):
         estimator.estimate(frame, "box", mask=mask[:10])
     with pytest.raises(ObjectNotFoundError, match="valid depth points"):
