@@ -46,7 +46,7 @@ def _run_demo(args: argparse.Namespace) -> int:
     import subprocess
 
     scene = args.scene or str(
-        Path(__file__).resolve().parents[1] / "sim" / "scenes" / "tabletop_household.yaml"
+        Path(__file__).resolve().parents[2] / "sim" / "scenes" / "tabletop_household.yaml"
     )
     check_scene_file(scene)
     check_output_folder(args.out, "--out")
