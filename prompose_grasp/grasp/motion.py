@@ -507,18 +507,22 @@ def free_move(
     holding = held is not None
     T_tcp_flange = invert_T(gripper.T_flange_tcp)
     q0, q1 = np.asarray(q0, dtype=np.float64), np.asarray(q1, dtype=np.float64)
+
+    def first_hit(W: np.ndarray) -> Hit | None:  # the path W (K, 6) through the scene
+        return check_path(
+            robot,
+            scene,
+            W,
+            gripper,
+            opening_m,
+            include_target=not holding,
+            held=held,
+            T_tcp_obj=T_tcp_obj,
+            config=cfg,
+        )[1]
+
     W = np.array([q0, q1])
-    _, hit = check_path(
-        robot,
-        scene,
-        W,
-        gripper,
-        opening_m,
-        include_target=not holding,
-        held=held,
-        T_tcp_obj=T_tcp_obj,
-        config=cfg,
-    )
+    hit = first_hit(W)
     if hit is None:
         return W
     T0 = robot.fk(q0) @ gripper.T_flange_tcp
@@ -537,18 +541,7 @@ def free_move(
         if up0 is None or down1 is None:
             break  # higher is out of reach too
         W = np.vstack([up0, down1[::-1]])
-        _, detour_hit = check_path(
-            robot,
-            scene,
-            W,
-            gripper,
-            opening_m,
-            include_target=not holding,
-            held=held,
-            T_tcp_obj=T_tcp_obj,
-            config=cfg,
-        )
-        if detour_hit is None:
+        if first_hit(W) is None:
             return W
     name = "transfer" if holding else "to_pregrasp"
     raise NoFeasibleMotion(

@@ -67,7 +67,23 @@ class _Sampler:
         self.sample()  # where the command left the arm
 
 
-class ObservedArm(Arm):
+class _WrapsDevice:
+    """Connecting and the connection state are the wrapped device's own."""
+
+    wrapped: Any
+
+    def connect(self) -> None:
+        self.wrapped.connect()
+
+    def disconnect(self) -> None:
+        self.wrapped.disconnect()
+
+    @property
+    def is_connected(self) -> bool:
+        return self.wrapped.is_connected
+
+
+class ObservedArm(_WrapsDevice, Arm):
     """`arm`, each command recorded as sent (`Recorder.motion`) with the joints measured while it ran
     (`Recorder.arm_state`). Any other attribute is the wrapped arm's (`validator`, a simulator's timing)."""
 
@@ -87,16 +103,6 @@ class ObservedArm(Arm):
 
     def __getattr__(self, name: str) -> Any:  # only for what this class does not define
         return getattr(self.wrapped, name)
-
-    def connect(self) -> None:
-        self.wrapped.connect()
-
-    def disconnect(self) -> None:
-        self.wrapped.disconnect()
-
-    @property
-    def is_connected(self) -> bool:
-        return self.wrapped.is_connected
 
     def joint_positions(self) -> np.ndarray:
         return self.wrapped.joint_positions()
@@ -148,7 +154,7 @@ class ObservedArm(Arm):
         self.wrapped.stop()
 
 
-class ObservedGripper(Gripper):
+class ObservedGripper(_WrapsDevice, Gripper):
     """`gripper`, each command recorded: the commanded force, then the jaw width and the detection it
     answered with (`Recorder.gripper`). Any other attribute is the wrapped gripper's; `open_to` is wrapped
     when the gripper has one."""
@@ -161,16 +167,6 @@ class ObservedGripper(Gripper):
         if name == "open_to" and callable(getattr(self.wrapped, "open_to", None)):
             return self._open_to
         return getattr(self.wrapped, name)
-
-    def connect(self) -> None:
-        self.wrapped.connect()
-
-    def disconnect(self) -> None:
-        self.wrapped.disconnect()
-
-    @property
-    def is_connected(self) -> bool:
-        return self.wrapped.is_connected
 
     def _after(self, force_n: float | None = None) -> None:
         try:
