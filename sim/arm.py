@@ -377,11 +377,29 @@ class SimArm(Arm):
         """One control period of a set-point stream: servo to `q` (6,) [rad] with speed `qd` [rad/s] and
         acceleration `qdd` [rad/s^2] feed-forward (as the motion commands do), and step the physics once.
 
-        For replaying recorded set-points (`sim.recording.replay_episode`); nothing is validated here, the
-        recording was. Raises `ProtectiveStopError` as the motion commands do."""
+        For replaying recorded set-points (`sim.recording.replay_episode`). A recording can be edited or
+        damaged, so each set-point is validated as a configuration (finite, within the joint limits, the TCP
+        in the workspace), and no joint's set-point may move more in one step than 3 x its speed cap allows:
+        the replay interpolates 20 Hz set-points of speed-capped moves with a monotone cubic (PCHIP), whose
+        slope is at most 3 x the slope between its knots (Fritsch-Carlson). Raises `UnsafeCommandError` for
+        a set-point that breaks these, before it is applied, and `ProtectiveStopError` as the motion commands
+        do."""
         self._require()
         self._require_unlocked("servo")
-        self._apply(*(np.asarray(v, dtype=np.float64).reshape(6) for v in (q, qd, qdd)))
+        q_now = self.commanded_joint_positions()  # the last set-point, without the feed-forward advance
+        q = self.validator.validate_configuration(q, q_now, what="servo set-point")
+        qd, qdd = (np.asarray(v, dtype=np.float64).reshape(6) for v in (qd, qdd))
+        step_cap = 3.0 * np.asarray(self.validator.config.max_joint_speed_rad_s) * self._dt
+        jump = np.abs(q - q_now)
+        if not (np.all(np.isfinite(qd)) and np.all(np.isfinite(qdd))):
+            raise UnsafeCommandError("servo: the speed or acceleration feed-forward is not finite")
+        if np.any(jump > step_cap):
+            j = int(np.argmax(jump - step_cap))
+            raise UnsafeCommandError(
+                f"servo: joint {j} set-point jumps {jump[j]:.4f} rad in one {self._dt * 1e3:.0f} ms step "
+                f"(at most {step_cap[j]:.4f} rad: 3 x its speed cap)"
+            )
+        self._apply(q, qd, qdd)
         fault = self._step()
         self._steps += 1
         if fault is not None:

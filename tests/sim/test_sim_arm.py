@@ -102,6 +102,17 @@ def test_refused_commands_leave_the_sim_untouched():
         # Beyond the UR5e's reach (0.85 m) yet inside the workspace box: IK refuses before anything moves.
         with pytest.raises(UnreachableError):
             arm.move_linear(make_T(R_DOWN, [-1.3, 0.0, 0.2]), 0.2, 0.5)
+        # A replayed set-point stream (`servo`) is checked too: limits, NaN, and a jump no speed cap allows.
+        zero = np.zeros(6)
+        with pytest.raises(UnsafeCommandError, match="elbow_joint"):
+            arm.servo(bad_q, zero, zero)
+        with pytest.raises(UnsafeCommandError, match="NaN"):
+            arm.servo(np.full(6, np.nan), zero, zero)
+        with pytest.raises(UnsafeCommandError, match="jumps"):
+            jump = np.array([0.05, 0, 0, 0, 0, 0])  # in one 2 ms step: 25 rad/s
+            arm.servo(arm.commanded_joint_positions() + jump, zero, zero)
+        with pytest.raises(UnsafeCommandError, match="not finite"):
+            arm.servo(arm.commanded_joint_positions(), np.full(6, np.inf), zero)
         after = _state(world)
         for a, b in zip(before, after):
             np.testing.assert_array_equal(a, b)
