@@ -66,23 +66,17 @@ def _pick(args: argparse.Namespace) -> int:
     def show(event) -> None:
         print(f"[{100 * event.fraction:3.0f}%] {event.stage:8s} {event.message}", flush=True)
 
+    from prompose_grasp.cli.arguments import open_recorder, rerun_target
     from sim.bench_pick import record_config_from_args
 
-    recorder = None
-    if args.rerun is not None:
-        from prompose_grasp.viz.target import RerunTarget
-
-        target = RerunTarget.parse(args.rerun)  # checked before the scene loads
+    target = rerun_target(args)  # checked before the scene loads
     record = record_config_from_args(args)
     sink = None
     if record is not None:
         from sim.record_dataset import EpisodeSink
 
         sink = EpisodeSink(args.record, record)  # checks the folder before anything runs
-    if args.rerun is not None:
-        from prompose_grasp.viz.rerun_recorder import RerunRecorder
-
-        recorder = RerunRecorder.open(target)
+    recorder = open_recorder(target)
     try:
         result = run_episode(
             args.scene, args.command, args.out, seed=args.seed, video=args.video, on_event=show,
@@ -129,15 +123,10 @@ def main(argv: list[str] | None = None) -> int:
     pick.add_argument("--out", required=True, help="output folder (summary.json, overlay_0.png, episode.mp4)")
     pick.add_argument("--seed", type=int, default=None, help="scene/noise seed (default: file's)")
     pick.add_argument("--video", action="store_true", help="also write episode.mp4")
-    pick.add_argument(
-        "--rerun",
-        nargs="+",
-        default=None,
-        metavar="TARGET",
-        help="record the episode for the rerun viewer: FILE.rrd | spawn | connect [URL] (extra viz)",
-    )
+    from prompose_grasp.cli.arguments import add_rerun
     from sim.bench_pick import add_arguments, add_record_arguments
 
+    add_rerun(pick)
     add_record_arguments(pick)
 
     bench = sub.add_parser("bench-pick", help="closed-loop success rate over seeded episodes")
