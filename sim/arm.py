@@ -219,6 +219,8 @@ class SimArm(Arm):
         self._f6 = np.zeros(6)
         self._contact_note = ""
         self._q_cmd: np.ndarray | None = None  # (6,) the set-point last commanded, before feed-forward [rad]
+        self._guard_n: float | None = None  # a guarded move's force limit [N] while one runs
+        self._guard_tripped = False
 
     # ------------------------------------------------------------------ device
     def connect(self) -> None:
@@ -368,6 +370,32 @@ class SimArm(Arm):
         self._run_trajectory(sent, q0)
         return sent
 
+    @property
+    def senses_contact(self) -> bool:
+        return True
+
+    def move_linear_until_contact(
+        self, T_base_tcp: ArrayLike, speed: float, accel: float, max_force_n: float
+    ) -> bool:
+        """`move_linear`, stopped at the first physics step whose net external force on the robot exceeds
+        `max_force_n` [N] (below `protective_stop_force_n`): the servos then hold the measured joints, as a
+        controller's guarded move stops within a few milliseconds of the touch. True when the line was
+        completed, False when it stopped on contact."""
+        limit = float(max_force_n) if isinstance(max_force_n, int | float) else math.nan
+        if not (math.isfinite(limit) and limit > 0):
+            raise InvalidInputError(f"max_force_n must be finite and > 0 N, got {max_force_n!r}")
+        if self.protective_stop_force_n is not None and limit >= self.protective_stop_force_n:
+            raise InvalidInputError(
+                f"max_force_n {limit:g} N must be under the protective stop's "
+                f"{self.protective_stop_force_n:g} N"
+            )
+        self._guard_n, self._guard_tripped = limit, False
+        try:
+            self.move_linear(T_base_tcp, speed, accel)
+        finally:
+            self._guard_n = None
+        return not self._guard_tripped
+
     def stop(self) -> None:
         """Decelerate the running motion to a stop at the validator's joint acceleration cap (thread-safe)."""
         self._require()
@@ -491,6 +519,14 @@ class SimArm(Arm):
             fault = self._step()
             steps += 1
             if fault is not None:
+                break
+            if self._guard_n is not None and self._forces[-1] > self._guard_n:
+                # a guarded move's touch: hold the measured joints (no feed-forward), as a controller's
+                # stop on contact does; the settling below holds them
+                self._guard_tripped = True
+                q_final = d.qpos[info.qpos_adr].copy()
+                log.info("SimArm: guarded move stopped on contact (%.0f N; %s)", self._forces[-1],
+                         self._contact_note)  # fmt: skip
                 break
         if fault is None:
             d.ctrl[info.actuator_ids] = q_final

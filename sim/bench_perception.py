@@ -125,7 +125,7 @@ def perceive_one(
     }
     with build_scene(spec, seed=seed) as world:
         camera = next(c["name"] for c in spec.cameras if "pose" in c)
-        frame = world.render(camera, rng=np.random.default_rng(seed))
+        frame = without_robot(world, world.render(camera, rng=np.random.default_rng(seed)))
         instances = world.ground_truth_mask(camera)
         names = {o.instance_id: o.name for o in world.objects}
         gts = {g.name: g for g in world.ground_truth(camera)}
@@ -187,6 +187,26 @@ def perceive_one(
         row["height_est_m"] = _extent_along(est.pose.R, est.pose.size, up)
         row["height_gt_m"] = _extent_along(gt.R_cam_obj, gt.size_m, up)
     return row
+
+
+def without_robot(world: Any, frame: Any) -> Any:
+    """`frame` with no depth where it sees the scene's robot, as the closed loop's first look has it
+    (`pipeline.observe.without_robot`: the arm's capsules at its joints now, margin
+    `PickConfig.self_filter_margin_m`): the links in view are never offered as objects there, so they are
+    not here either."""
+    import dataclasses
+
+    from prompose_grasp.grasp import get_gripper
+    from prompose_grasp.grasp.self_filter import robot_pixel_mask, robot_self_capsules
+    from prompose_grasp.pipeline.config import PickConfig
+
+    info, margin = world.robot, PickConfig().self_filter_margin_m
+    if info is None or info.gripper is None or margin is None or frame.T_base_cam is None:
+        return frame
+    q = world.data.qpos[info.qpos_adr].copy()
+    capsules = robot_self_capsules(info.robot, get_gripper(info.gripper), q)
+    on_robot = robot_pixel_mask(frame.depth_m, frame.intrinsics, frame.T_base_cam, capsules, margin)
+    return dataclasses.replace(frame, depth_m=np.where(on_robot, np.float32(0.0), frame.depth_m))
 
 
 def _extent_along(R: np.ndarray, size: np.ndarray, direction: np.ndarray) -> float:

@@ -188,6 +188,18 @@ class RecordingArm(Arm):
     def follow(self, trajectory: JointTrajectory) -> JointTrajectory:
         return self._record(self.arm.follow(trajectory))
 
+    @property
+    def senses_contact(self) -> bool:
+        return bool(self.arm.senses_contact)
+
+    def move_linear_until_contact(
+        self, T_base_tcp: ArrayLike, speed: float, accel: float, max_force_n: float
+    ) -> bool:
+        reached = self.arm.move_linear_until_contact(T_base_tcp, speed, accel, max_force_n)
+        self._record(LinearCommand(np.asarray(T_base_tcp, dtype=np.float64), float(speed), float(accel)))
+        self.log[-1] += f" (guarded at {max_force_n:g} N: {'reached' if reached else 'stopped on contact'})"
+        return reached
+
     def stop(self) -> None:
         self.arm.stop()
         self.log.append("stop")

@@ -36,6 +36,7 @@ side by side.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -86,6 +87,7 @@ RECEIVE_VARIABLES = (
     "timestamp",
     "actual_q",
     "actual_TCP_pose",
+    "actual_TCP_force",
     "robot_mode",
     "safety_mode",
     "safety_status_bits",
@@ -129,6 +131,7 @@ class RtdeReceiveLink(Protocol):
 
     def getActualQ(self) -> list[float]: ...
     def getActualTCPPose(self) -> list[float]: ...
+    def getActualTCPForce(self) -> list[float]: ...
     def isProtectiveStopped(self) -> bool: ...
     def isEmergencyStopped(self) -> bool: ...
     def getDigitalInState(self, input_id: int) -> bool: ...
@@ -546,20 +549,71 @@ class URRtdeArm(Arm):
         return command
 
     def move_linear(self, T_base_tcp: ArrayLike, speed: float, accel: float) -> LinearCommand:
+        command = self._linear(T_base_tcp, speed, accel, "move_linear")
+        self._run_linear(command, "move_linear")
+        return command
+
+    @property
+    def senses_contact(self) -> bool:
+        return True
+
+    def move_linear_until_contact(
+        self, T_base_tcp: ArrayLike, speed: float, accel: float, max_force_n: float
+    ) -> bool:
+        """`move_linear`, stopped (stopL at `stop_linear_decel_m_s2`) at the first poll where the force at
+        the tool (`getActualTCPForce`, the controller's estimate: an e-Series arm's built-in sensor, a CB3's
+        joint currents) differs from its value before the move by more than `max_force_n` [N]: the
+        difference leaves out the sensor's offset and the tool's own weight. True when the line was
+        completed, False when it stopped on contact. The force is read every `poll_period_s`: at the
+        approach speeds of a guarded move (a few cm/s) the arm travels a millimetre or two between reads."""
+        limit = float(max_force_n) if isinstance(max_force_n, int | float) else math.nan
+        if not (math.isfinite(limit) and limit > 0):
+            raise InvalidInputError(f"max_force_n must be finite and > 0 N, got {max_force_n!r}")
+        command = self._linear(T_base_tcp, speed, accel, "move_linear_until_contact")
+        f0 = self._tool_force("move_linear_until_contact")
+        felt: list[float] = []
+
+        def touched() -> bool:
+            f = float(np.linalg.norm(self._tool_force("move_linear_until_contact") - f0))
+            if f > limit:
+                felt.append(f)
+            return bool(felt)
+
+        self._run_linear(command, "move_linear_until_contact", touched)
+        if not felt:
+            return True
+        self._send_stop()
+        logger.info("guarded move stopped on contact: %.0f N at the tool (limit %g N)", felt[0], limit)
+        return False
+
+    def _tool_force(self, what: str) -> np.ndarray:
+        """(3,) the force part of `getActualTCPForce` [N]."""
+        try:
+            return np.asarray(self._receive.getActualTCPForce(), dtype=np.float64)[:3]
+        except RuntimeError as exc:
+            self._lost(what, exc)
+            raise  # not reached: `_lost` raises
+
+    def _linear(self, T_base_tcp: ArrayLike, speed: float, accel: float, what: str) -> LinearCommand:
+        """The validated straight line to `T_base_tcp`, its end configuration checked too."""
         self._require()
         command = self.validator.validate_linear_move(T_base_tcp, speed, accel)
         q_now = self.joint_positions()
         result = self.robot.ik(command.T_base_tcp, q_seed=q_now, frame="tcp")
         if not result.success:
-            raise UnreachableError(f"move_linear target not reachable: {result.message}")
+            raise UnreachableError(f"{what} target not reachable: {result.message}")
         # The end configuration goes through the joint checks too (limits, step, workspace).
-        self.validator.validate_configuration(result.q, q_now, "move_linear end configuration")
-        self._check("move_linear")
+        self.validator.validate_configuration(result.q, q_now, f"{what} end configuration")
+        self._check(what)
+        return command
+
+    def _run_linear(self, command: LinearCommand, what: str, until=None) -> None:
+        """Send the validated line as an asynchronous moveL and watch it (`_run_async`)."""
         pose = pose_vector_from_T(command.T_base_tcp).tolist()
         distance = float(np.linalg.norm(command.T_base_tcp[:3, 3] - self.tcp_pose()[:3, 3]))
         timeout_s = _trapezoid_time(distance, command.speed_m_s, command.accel_m_s2)
         self._run_async(
-            "move_linear",
+            what,
             "linear",
             lambda: self._control.moveL(pose, command.speed_m_s, command.accel_m_s2, True),
             timeout_s,
@@ -567,16 +621,18 @@ class URRtdeArm(Arm):
                 float(np.linalg.norm(self.tcp_pose()[:3, 3] - command.T_base_tcp[:3, 3]))
                 <= self.config.reached_tol_m
             ),
+            until,
         )
-        return command
 
-    def _run_async(self, what: str, motion: str, send, nominal_s: float, reached) -> None:
+    def _run_async(self, what: str, motion: str, send, nominal_s: float, reached, until=None) -> None:
         """Send an asynchronous move and watch it: progress, link, safety, stop requests.
 
         The move counts as finished when the progress register, having shown it running, reads -1 again,
         or when it reads -1 and `reached()` says the arm stands at the target (a short move may finish
         between two polls). A move that neither shows as running nor arrives within `start_timeout_s` is
         stopped and reported: the next command would otherwise be sent over a move still in progress.
+        `until()`, when given, is asked at every poll while the move runs; True returns at once with the
+        move still running (the caller stops it).
         """
         self._stop_requested.clear()
         self._motion = motion
@@ -600,6 +656,8 @@ class URRtdeArm(Arm):
                 self._lost(what, exc)
             self._check(what)
             started = started or running
+            if running and until is not None and until():
+                return
             if not running and (started or reached()):
                 self._motion = None
                 return

@@ -17,6 +17,7 @@ from prompose_grasp.grasp import (
     plan_pick_place,
     plan_place,
 )
+from prompose_grasp.grasp.grippers import ParallelJawGeometry
 from prompose_grasp.grasp.motion import GripperAction, MotionConfig, free_move, timed_trajectory
 from prompose_grasp.grasp.scene import CollisionScene
 from prompose_grasp.grasp.types import Grasp
@@ -29,7 +30,7 @@ from prompose_grasp.pipeline.plan import carried_target
 from prompose_grasp.pipeline.record import Abort, RunRecord
 from prompose_grasp.pipeline.verify import reobserve, verify_held
 
-__all__ = ["pick", "pick_place"]
+__all__ = ["approach", "pick", "pick_place", "touch_zone_m"]
 
 #: Place candidates examined (the planner's default 200 are all within ~0.3 m of the preferred point: a belt
 #: with one carton already at its centre had no free spot among them).
@@ -74,10 +75,7 @@ def pick(loop: Loop, run: RunRecord, grasp: Grasp, scene: CollisionScene) -> flo
                 "to pre-grasp",
                 lambda: loop.arm.move_joints(ik.q, cfg.joint_speed_rad_s, cfg.joint_accel_rad_s2),
             )
-        safe(
-            "approach",
-            lambda: loop.arm.move_linear(grasp.T_base_tcp, cfg.linear_speed_m_s, cfg.linear_accel_m_s2),
-        )
+        approach(loop, grasp, scene.target)
         close_jaws(loop, run)
         moving_closed(run)
         safe(
@@ -85,6 +83,56 @@ def pick(loop: Loop, run: RunRecord, grasp: Grasp, scene: CollisionScene) -> flo
             lambda: loop.arm.move_linear(grasp.T_base_retreat, cfg.linear_speed_m_s, cfg.linear_accel_m_s2),
         )
     return verify_held(loop, run, grasp)
+
+
+def approach(loop: Loop, grasp: Grasp, target: ObjectModel | None) -> None:
+    """The straight line from the pre-grasp to the grasp; guarded for open jaws on an arm that measures the
+    force at its tool (`PickConfig.approach_contact_force_n`), at the touch speed where the fingers may meet
+    the `target` (`touch_zone_m`): on a touch the arm backs off to the pre-grasp and the attempt ends
+    "collision"."""
+    cfg = loop.config
+    T, speed, accel = grasp.T_base_tcp, cfg.linear_speed_m_s, cfg.linear_accel_m_s2
+    limit = cfg.approach_contact_force_n
+    grip = loop.gripper_geometry
+    if limit is None or not loop.arm.senses_contact or not isinstance(grip, ParallelJawGeometry):
+        safe("approach", lambda: loop.arm.move_linear(T, speed, accel))
+        return
+    T = np.asarray(T, dtype=np.float64)
+    line = T[:3, 3] - np.asarray(grasp.T_base_pregrasp)[:3, 3]
+    length = float(np.linalg.norm(line))
+    zone = min(length, touch_zone_m(T, target, grip.fingertip_below_tcp_m, cfg.approach_touch_zone_m))
+    T_slow = T.copy()
+    T_slow[:3, 3] -= zone * line / max(length, 1e-9)
+    legs = [(T, cfg.approach_touch_speed_m_s)]
+    if length - zone > 1e-3:  # at the approach speed down to the touch zone first
+        legs.insert(0, (T_slow, speed))
+    if all(_guarded_leg(loop, T_leg, v, accel, limit) for T_leg, v in legs):  # stops at the first touch
+        return
+    short = float(np.linalg.norm(loop.arm.tcp_pose()[:3, 3] - T[:3, 3]))
+    safe("back off after a touch", lambda: loop.arm.move_linear(grasp.T_base_pregrasp, speed, accel))
+    raise Abort(
+        "collision",
+        f"the open jaws touched something {1e3 * short:.0f} mm before the grasp pose (over {limit:g} N on "
+        "the approach): a part of the object or a neighbour the plan did not know of; backed off to the "
+        "pre-grasp",
+    )
+
+
+def _guarded_leg(loop: Loop, T: np.ndarray, speed: float, accel: float, limit: float) -> bool:
+    """One guarded line of the approach; False when it stopped on contact."""
+    return safe("approach", lambda: loop.arm.move_linear_until_contact(T, speed, accel, limit))
+
+
+def touch_zone_m(T_grasp: np.ndarray, target: ObjectModel | None, tip_m: float, margin_m: float) -> float:
+    """How far before the grasp pose (along its approach, the tcp's +z) the open fingertips come within
+    `margin_m` of the target's box: where its nearest face lies across their way, plus the margin [m]
+    (just the margin without a target)."""
+    if target is None:
+        return margin_m
+    a = T_grasp[:3, 2]
+    tips = T_grasp[:3, 3] + tip_m * a
+    ahead = (target.pose.corners() - tips) @ a  # > 0: beyond where the tips stop
+    return max(0.0, -float(np.min(ahead))) + margin_m
 
 
 def pick_place(

@@ -150,6 +150,22 @@ class ObservedArm(_WrapsDevice, Arm):
     def follow(self, trajectory: JointTrajectory) -> JointTrajectory:
         return self._recorded("follow", lambda: self.wrapped.follow(trajectory))
 
+    @property
+    def senses_contact(self) -> bool:
+        return bool(self.wrapped.senses_contact)
+
+    def move_linear_until_contact(
+        self, T_base_tcp: ArrayLike, speed: float, accel: float, max_force_n: float
+    ) -> bool:
+        reached: list[bool] = []
+
+        def guarded() -> LinearCommand:  # drawn as the line it was sent as, wherever it stopped
+            reached.append(self.wrapped.move_linear_until_contact(T_base_tcp, speed, accel, max_force_n))
+            return LinearCommand(np.asarray(T_base_tcp, dtype=np.float64), float(speed), float(accel))
+
+        self._recorded("move_linear_until_contact", guarded)
+        return reached[0]
+
     def stop(self) -> None:
         self.wrapped.stop()
 

@@ -3,6 +3,7 @@ the closer estimate replaces the fixed camera's (tracking the target on approach
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import numpy as np
@@ -11,14 +12,14 @@ from prompose_grasp.errors import CameraError, UnreachableError, UnsafeCommandEr
 from prompose_grasp.geometry.se3 import invert_T
 from prompose_grasp.grasp import check_path
 from prompose_grasp.grasp.scene import CollisionScene
-from prompose_grasp.grasp.types import Grasp
+from prompose_grasp.grasp.types import Grasp, ObjectModel
 from prompose_grasp.pipeline.command import Command
 from prompose_grasp.pipeline.loop import Loop
 from prompose_grasp.pipeline.observe import Observation, estimates_once, to_base
 from prompose_grasp.pipeline.record import Abort, RunRecord
 from prompose_grasp.robot.interfaces import RGBDFrame
 
-__all__ = ["aim_camera", "wrist_look", "wrist_mount"]
+__all__ = ["aim_camera", "with_first_view", "wrist_look", "wrist_mount"]
 
 logger = logging.getLogger(__name__)
 
@@ -97,7 +98,21 @@ def _look_from(
     shift, est, target = best
     run.acted_on(est, T_base_cam)
     loop.emit("estimate", f"wrist camera: the target is {1e3 * shift:.0f} mm from the first view", 0.4)
-    return Observation(obs.frame, est, target, obs.support, obs.points_base, obs.q_seen)
+    return Observation(obs.frame, est, with_first_view(target, obs.target), obs.support, obs.points_base,
+                       obs.q_seen)  # fmt: skip
+
+
+def with_first_view(target: ObjectModel, first: ObjectModel) -> ObjectModel:
+    """The wrist's target, its seen surface joined by the first view's: the object has not moved between the
+    two looks, and each camera sees parts of it the other does not (from above, the wrist sees tops; the
+    fixed camera sees sides, an ear or a spout that a fit from above leaves out). The grasp planner keeps the
+    jaws off all of it (`grasp.planner`, "collision_seen")."""
+    views = [
+        v.surface_points for v in (target, first) if v.surface_points is not None and len(v.surface_points)
+    ]
+    if not views or (len(views) == 1 and views[0] is target.surface_points):
+        return target
+    return dataclasses.replace(target, surface_points=np.concatenate(views))
 
 
 def wrist_mount(loop: Loop) -> np.ndarray | None:

@@ -265,6 +265,22 @@ class Arm(Device):
     def move_linear(self, T_base_tcp: ArrayLike, speed: float, accel: float) -> LinearCommand:
         """Move the TCP along a straight line to T_base_tcp (4, 4) at speed [m/s], acceleration [m/s^2]."""
 
+    @property
+    def senses_contact(self) -> bool:
+        """The arm measures the external force at its tool and can stop a move at a touch
+        (`move_linear_until_contact`)."""
+        return False
+
+    def move_linear_until_contact(
+        self, T_base_tcp: ArrayLike, speed: float, accel: float, max_force_n: float
+    ) -> bool:
+        """A guarded `move_linear`: the same straight line, stopped (the arm holds where it is) as soon as the
+        external force at the tool exceeds `max_force_n` [N], a touch well under the safety system's force
+        limit. True when the line was completed, False when it stopped on contact. Arms that do not measure
+        the force (`senses_contact` False) raise `NotImplementedError`: a caller that needs the guard must
+        not get an unguarded move in its place."""
+        raise NotImplementedError(f"{type(self).__name__} does not measure the force at its tool")
+
     @abc.abstractmethod
     def follow(self, trajectory: JointTrajectory) -> JointTrajectory:
         """Stream a timed joint trajectory; returns the validated trajectory that was sent."""

@@ -200,3 +200,24 @@ def test_an_object_lower_than_a_pad_is_held_at_the_fingertips_just_above_the_tab
     with pytest.raises(NoFeasibleGrasp) as err:
         plan_grasps(target, ROBOT, JAW, [], TABLE, None, HOME_Q, GraspConfig(fingertip_contact_margin_m=-1.0))
     assert set(err.value.rejected) <= {"support", "stroke"} and err.value.rejected["support"] > 0
+
+
+def test_seen_surface_outside_the_fitted_box_keeps_the_jaws_off_it():
+    # The fitted box (50 x 60 mm footprint, 60 mm tall) left out an ear the camera saw 14 mm beyond its +x
+    # face: within the planner's target margin (15 mm), so the ear's points count as the target's own and
+    # are not obstacles. The top-down grasp closing along x would bring a pad down onto the ear.
+    cfg = GraspConfig(exhaustive=True, max_grasps=10_000)
+    g = np.linspace(-0.02, 0.02, 9)
+    top = np.array([[-0.5 + x, 0.1 + y, 0.06] for x in g for y in g])  # the top face, inside the box
+    ear = np.array([[-0.5 + 0.039, 0.1 + y, z] for y in g for z in np.linspace(0.02, 0.05, 7)])
+    along_x = lambda plan: [  # noqa: E731 - a predicate over a plan's grasps
+        h for h in plan if np.allclose(h.approach, [0, 0, -1]) and abs(h.T_base_tcp[0, 1]) > 0.99
+    ]
+    seen_top = _box("box", [-0.5, 0.1, 0.03], [0.05, 0.06, 0.06], surface_points=top)
+    free = plan_grasps(seen_top, ROBOT, JAW, [], TABLE, None, HOME_Q, cfg)
+    assert along_x(free) and free.rejected.get("collision_seen", 0) == 0  # its own top is no obstacle
+    seen_ear = _box("box", [-0.5, 0.1, 0.03], [0.05, 0.06, 0.06], surface_points=np.vstack([top, ear]))
+    plan = plan_grasps(seen_ear, ROBOT, JAW, [], TABLE, None, HOME_Q, cfg)
+    assert plan.rejected.get("collision_seen", 0) >= 1
+    assert not along_x(plan)  # the ear spans the pad's whole slide along y and its depths
+    assert len(plan) > 0  # the grasps closing along y are untouched

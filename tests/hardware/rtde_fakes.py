@@ -114,12 +114,21 @@ class FakeReceive:
         self.protective = False
         self.emergency = False
         self.inputs = 0
+        #: [Fx, Fy, Fz, Tx, Ty, Tz] the controller's tool force estimate reports (a test sets it, or
+        #: `force_at` gives it per call: a contact during a move)
+        self.tcp_force = [0.0] * 6
+        self.force_at: Callable[[int], list[float]] | None = None
+        self.force_reads = 0
 
     def getActualQ(self):
         return list(self.q)
 
     def getActualTCPPose(self):
         return list(self.tcp_pose)
+
+    def getActualTCPForce(self):
+        self.force_reads += 1
+        return list(self.tcp_force if self.force_at is None else self.force_at(self.force_reads))
 
     def isProtectiveStopped(self):
         return self.protective

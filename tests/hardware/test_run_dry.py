@@ -144,7 +144,15 @@ def test_real_path_sends_the_validated_moves_to_the_control_link(recording, esti
         gripper_server.close()
     assert result.outcome.success and not result.dry_run
     wire = [(name, args) for name, args in log if name in ("moveJ", "moveL", "servoJ")]
-    assert [name for name, _ in wire] == ["moveJ", "moveL", "moveL"]
+    # the pre-grasp, the approach as a guarded line in two legs (URRtdeArm reads the tool force: at the
+    # approach speed down to where the jaws may meet the bottle, then at the touch speed), the lift
+    assert [name for name, _ in wire] == ["moveJ", "moveL", "moveL", "moveL"]
+    cfg = PickConfig()
+    assert [args[1] for _, args in wire[1:]] == [
+        cfg.linear_speed_m_s,
+        cfg.approach_touch_speed_m_s,
+        cfg.linear_speed_m_s,
+    ]
     sent = result.arm_commands
     assert wire[0][1][0] == sent[0].q.tolist()  # the validated joint target, unchanged
     for (_, args), command in zip(wire[1:], sent[1:]):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from rtde_fakes import CallLog, FakeControl, FakeIO, FakeLinks, FakeReceive
 
-from prompose_grasp.errors import DeviceNotConnectedError, UnsafeCommandError
+from prompose_grasp.errors import DeviceNotConnectedError, InvalidInputError, UnsafeCommandError
 from prompose_grasp.geometry.se3 import T_from_pose_vector, pose_vector_from_T
 from prompose_grasp.hardware import (
     ConnectionLostError,
@@ -289,3 +289,34 @@ def test_refused_connection_is_a_clear_error():
     with pytest.raises(DeviceNotConnectedError):
         arm.move_joints(HOME_Q, 0.5, 1.0)
     assert time.monotonic() - t0 < 1.0  # no retry loop: refused at once (wide bound for a loaded machine)
+
+
+def test_a_guarded_line_stops_with_stopL_when_the_tool_force_rises_over_its_start():
+    arm, _, receive, log, _ = make_arm(moving_polls=50)
+    T = ROBOT.fk_tcp(HOME_Q)
+    T[:3, 3] += [0.0, 0.0, -0.05]
+    # The tool weighs on the sensor from the start (-12 N along z): only a change counts. From the third
+    # read on (the first is the baseline), a touch of 45 N more pushes back.
+    receive.force_at = lambda k: [0.0, 0.0, -12.0 + (45.0 if k >= 3 else 0.0), 0.0, 0.0, 0.0]
+    with arm:
+        assert arm.senses_contact
+        assert arm.move_linear_until_contact(T, 0.05, 0.5, 40.0) is False
+        assert arm.is_connected
+    names = log.names()
+    assert names.count("moveL") == 1 and names.index("stopL") > names.index("moveL")
+    assert receive.force_reads == 3  # stopped at the first read over the limit, not later
+
+
+def test_a_guarded_line_without_a_touch_completes_and_a_bad_limit_never_reaches_the_wire():
+    arm, _, receive, log, _ = make_arm(moving_polls=3)
+    T = ROBOT.fk_tcp(HOME_Q)
+    T[:3, 3] += [0.0, 0.0, -0.05]
+    receive.tcp_force = [3.0, -2.0, -12.0, 0.1, 0.0, 0.0]  # a steady tool weight and sensor offset
+    with arm:
+        assert arm.move_linear_until_contact(T, 0.05, 0.5, 40.0) is True
+        n = len(log)
+        for bad in (0.0, -1.0, float("nan")):
+            with pytest.raises(InvalidInputError, match="max_force_n"):
+                arm.move_linear_until_contact(T, 0.05, 0.5, bad)
+        assert len(log) == n  # nothing sent for a refused limit
+    assert "stopL" not in log.names()

@@ -165,6 +165,19 @@ def test_move_linear_moves_the_tcp_on_a_straight_line_to_the_target(ctrl, arm):
     assert len(samples) >= 10 and max(off_line) <= ROBOT.ik_config.position_tol_m
 
 
+def test_a_guarded_line_reads_the_real_tool_force_and_completes_without_a_touch(ctrl, arm):
+    # Through the real ur_rtde receive interface (its actual_TCP_force; the emulated arm feels nothing), the
+    # guarded line is the same single movel as an unguarded one and ends at its target.
+    T1 = ROBOT.fk_tcp(HOME_Q)
+    T1[:3, 3] += [0.0, 0.0, -0.04]
+    assert arm.move_linear_until_contact(T1, 0.05, 0.5, 40.0) is True
+    snap = ctrl.snapshot()
+    (move,) = [c for c in snap["commands"] if c.cmd == CMD_MOVEL]
+    assert move.args == (tuple(pose_vector_from_T(T1).tolist()), 0.05, 0.5, True)
+    ik_tol = max(ROBOT.ik_config.position_tol_m, ROBOT.ik_config.rotation_tol_rad)
+    np.testing.assert_allclose(arm.tcp_pose(), T1, atol=ik_tol)
+
+
 def test_follow_streams_servoj_at_500_hz_and_ends_with_servo_stop(ctrl, arm):
     q1 = HOME_Q + DQ
     trajectory = joint_trajectory(HOME_Q, q1, 0.5, 1.0)  # rest to rest, sampled every 2 ms

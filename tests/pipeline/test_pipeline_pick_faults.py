@@ -29,6 +29,7 @@ from prompose_grasp.pipeline.outcome import REASONS, STAGES, PickOutcome
 from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
 from prompose_grasp.pipeline.wrist_look import wrist_mount
 from prompose_grasp.robot import FakeArm, FakeGripper, RGBDFrame, load_robot
+from prompose_grasp.robot.interfaces import LinearCommand
 
 JAW = ParallelJawGeometry()
 ROBOT = load_robot("ur5e", tcp_offset=JAW.T_flange_tcp)
@@ -406,3 +407,103 @@ def test_a_retry_tries_the_object_where_it_stood_first():
     assert outcome.reason == "slipped" and len(outcome.attempts) == 2
     for attempt in outcome.attempts:  # each grasp closes on A: its tcp within A's 3 cm half width
         assert attempt.grasp.T_base_tcp[1, 3] == pytest.approx(0.15, abs=0.03)
+
+
+class TouchingArm(RecordingArm):
+    """A fake arm that measures the force at its tool: its first `touches` guarded lines at the touch speed
+    (`PickConfig().approach_touch_speed_m_s`: where the fingers pass the object) stop on contact `short_m`
+    before their end (a part of the object the plan did not know of); `guarded` lists each guarded line as
+    (speed, max_force_n, reached)."""
+
+    senses_contact = True
+
+    def __init__(self, *args, touches: int = 1, short_m: float = 0.01, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.touches, self.short_m = touches, short_m
+        self.guarded: list[tuple[float, float, bool]] = []
+
+    def move_linear_until_contact(self, T_base_tcp, speed, accel, max_force_n):
+        T = np.array(T_base_tcp, dtype=np.float64)
+        if self.touches > 0 and speed == PickConfig().approach_touch_speed_m_s:
+            self.touches -= 1
+            T[:3, 3] -= self.short_m * T[:3, 2]  # stops short, back along the approach (tcp +z)
+            self.move_linear(T, speed, accel)
+            self.guarded.append((speed, max_force_n, False))
+            return False
+        self.move_linear(T, speed, accel)
+        self.guarded.append((speed, max_force_n, True))
+        return True
+
+
+def _run_touching(touches: int, config: PickConfig) -> tuple[PickOutcome, TouchingArm]:
+    with TouchingArm(ROBOT, touches=touches) as arm, FakeGripper(object_width_m=0.05) as gripper:
+        outcome = PickAndPlace(
+            arm, gripper, Camera(), OracleEstimator(), ROBOT, "parallel_jaw", config=config
+        ).run(PICK)
+    assert arm.refused == [], arm.refused
+    return outcome, arm
+
+
+def test_a_touch_on_the_approach_backs_off_and_the_next_grasp_is_tried():
+    cfg = PickConfig(reobserve=False, max_estimates=1, grasps_per_estimate=2)
+    outcome, arm = _run_touching(1, cfg)
+    assert outcome.success, outcome.message
+    first, second = outcome.attempts
+    assert first.result == "collision" and "touched something 10 mm before the grasp pose" in first.message
+    assert "40 N" in first.message and second.result == "success"
+    # The touch was on the slow leg, at the touch speed and the configured force; after it the arm backed
+    # off to the touched grasp's pre-grasp (the next command is a line there, not the next grasp's moves).
+    speed = cfg.approach_touch_speed_m_s
+    assert arm.guarded[0] == (cfg.linear_speed_m_s, 40.0, True)  # the fast leg, down to the touch zone
+    assert [g for g in arm.guarded if not g[2]] == [(speed, 40.0, False)]
+    i = next(k for k, c in enumerate(arm.sent) if isinstance(c, LinearCommand) and c.speed_m_s == speed)
+    back = arm.sent[i + 1]
+    assert isinstance(back, LinearCommand)
+    np.testing.assert_allclose(back.T_base_tcp, first.grasp.T_base_pregrasp, atol=1e-9)  # exactly there
+    # Every later approach is guarded too: its last leg at the touch speed, reached.
+    assert arm.guarded[-1] == (cfg.approach_touch_speed_m_s, 40.0, True)
+
+
+def test_touches_on_every_grasp_end_the_run_as_a_collision_and_none_is_unguarded():
+    outcome, _ = _run_touching(10**6, PickConfig(reobserve=False, max_estimates=1, grasps_per_estimate=2))
+    assert outcome.reason == "collision" and not outcome.success
+    assert [a.result for a in outcome.attempts] == ["collision", "collision"]
+
+
+def test_the_guard_can_be_switched_off_and_is_validated():
+    outcome, arm = _run_touching(10**6, PickConfig(reobserve=False, approach_contact_force_n=None))
+    assert outcome.success and arm.guarded == []  # a plain move_linear approach: nothing guarded
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(InvalidInputError, match="approach_contact_force_n"):
+            PickConfig(approach_contact_force_n=bad)
+
+
+def test_the_touch_zone_starts_where_the_fingertips_reach_the_box_top():
+    from prompose_grasp.grasp.types import ObjectModel
+    from prompose_grasp.pipeline.execute import touch_zone_m
+
+    # Straight down (tcp +z = base -z) onto a box whose top is at z = 0.06 m; the tcp ends at z = 0.04 with
+    # the tips 0.015 m below it (z = 0.025): they cross the top 0.035 m before the end, plus the margin.
+    T = make_T(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 0.04])
+    box = ObjectModel("box", Pose9D(R_UP, [0.0, 0.0, 0.03], [0.05, 0.06, 0.06]))
+    assert touch_zone_m(T, box, 0.015, 0.03) == pytest.approx(0.065, abs=1e-12)
+    assert touch_zone_m(T, None, 0.015, 0.03) == 0.03  # no target: the margin alone
+    # A grasp whose tips stop above the box (they never reach it) still slows for the margin.
+    assert touch_zone_m(make_T(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 0.2]), box, 0.015, 0.03) == 0.03
+
+
+def test_the_wrist_target_keeps_what_the_first_view_saw_of_the_object():
+    from prompose_grasp.grasp.types import ObjectModel
+    from prompose_grasp.pipeline.wrist_look import with_first_view
+
+    pose = Pose9D(R_UP, [-0.5, 0.1, 0.03], [0.05, 0.06, 0.06])
+    tops = np.array([[-0.5, 0.1, 0.06], [-0.49, 0.1, 0.06]])  # the wrist, from above
+    side = np.array([[-0.46, 0.1, 0.03]])  # the fixed camera, an ear on the side
+    wrist = ObjectModel("target", pose, surface_points=tops)
+    joined = with_first_view(wrist, ObjectModel("target", pose, surface_points=side))
+    np.testing.assert_array_equal(joined.surface_points, np.vstack([tops, side]))  # both views, in order
+    assert joined.pose is wrist.pose  # the wrist's closer estimate stays the box
+    # Nothing to join: the wrist's target as it is; a wrist view without a seen surface takes the first's.
+    assert with_first_view(wrist, ObjectModel("target", pose)) is wrist
+    bare = with_first_view(ObjectModel("target", pose), ObjectModel("target", pose, surface_points=side))
+    np.testing.assert_array_equal(bare.surface_points, side)

@@ -57,3 +57,31 @@ def test_without_a_limit_the_same_push_does_not_stop():
         arm.move_linear(make_T(R_DOWN, [T0[0, 3], T0[1, 3], 0.02]), 0.25, 1.0)
         arm.move_linear(make_T(R_DOWN, [T0[0, 3], T0[1, 3], -0.01]), 0.1, 1.0)  # presses on the table
         assert not arm.protective_stopped
+
+
+def test_a_guarded_line_stops_at_the_touch_without_a_protective_stop():
+    # The same line into the table as above, guarded at 40 N at the pipeline's touch speed (0.05 m/s: a
+    # touch is stopped only after it happened, and at 0.1 m/s stopping on the rigid table alone presses
+    # over the limit): it stops where the fingers touch the table top, and the arm stays usable.
+    with _world() as world, SimArm(world) as arm:
+        assert arm.senses_contact
+        T0 = arm.tcp_pose()
+        arm.move_linear(make_T(R_DOWN, [T0[0, 3], T0[1, 3], 0.15]), 0.25, 1.0)
+        reached = arm.move_linear_until_contact(make_T(R_DOWN, [T0[0, 3], T0[1, 3], -0.05]), 0.05, 1.0, 40.0)
+        assert reached is False and not arm.protective_stopped
+        assert arm.max_external_force_n < PROTECTIVE_STOP_FORCE_N
+        # The tcp sits 1.5 cm above the pads' tips, so it stops within a few millimetres of that over the
+        # table top (z = 0): the arm stopped at the touch instead of pressing on to the line's end.
+        assert 0.005 < arm.tcp_pose()[2, 3] < 0.03
+        arm.move_linear(make_T(R_DOWN, [T0[0, 3], T0[1, 3], 0.15]), 0.1, 1.0)  # backs off: not locked
+        # A free line with the same guard is completed and says so.
+        assert arm.move_linear_until_contact(make_T(R_DOWN, [T0[0, 3], T0[1, 3], 0.10]), 0.2, 1.0, 40.0)
+        assert arm.tcp_pose()[2, 3] == pytest.approx(0.10, abs=1e-3)  # 1 mm: settled servo residual
+
+
+def test_a_guard_at_or_over_the_safety_limit_is_refused():
+    with _world() as world, SimArm(world) as arm:
+        T = arm.tcp_pose()
+        for bad in (0.0, -5.0, float("nan"), PROTECTIVE_STOP_FORCE_N, 400.0):
+            with pytest.raises(InvalidInputError, match="max_force_n"):
+                arm.move_linear_until_contact(T, 0.1, 1.0, bad)
