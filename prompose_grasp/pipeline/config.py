@@ -92,6 +92,9 @@ class PickConfig:
             190 N (over 10 ms) at 0.1 m/s, 127 N at 0.07 and 96 N at 0.05, against the 150 N limit.
         approach_touch_zone_m: see `approach_touch_speed_m_s`: the fitted box's faces are ~1 cm off the
             object's and a part it left out reaches further [m].
+        approach_touch_tolerance_m: a touch this close to the grasp pose is the grasp arriving, not an
+            obstacle: the jaws close there, the pads that much shallower than planned (they are planned
+            `pad_depth_margin_m` deep to spare) [m].
         grasp: `GraspConfig` of the planner.
     """
 
@@ -127,6 +130,7 @@ class PickConfig:
     approach_contact_force_n: float | None = 40.0
     approach_touch_speed_m_s: float = 0.05
     approach_touch_zone_m: float = 0.03
+    approach_touch_tolerance_m: float = 0.005
     grasp: GraspConfig | None = None
 
     def __post_init__(self) -> None:
@@ -159,6 +163,7 @@ class PickConfig:
             "wrist_max_shift_m",
             "approach_touch_speed_m_s",
             "approach_touch_zone_m",
+            "approach_touch_tolerance_m",
         )
         for name in floats:
             v = float(getattr(self, name))

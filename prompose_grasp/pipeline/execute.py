@@ -88,8 +88,8 @@ def pick(loop: Loop, run: RunRecord, grasp: Grasp, scene: CollisionScene) -> flo
 def approach(loop: Loop, grasp: Grasp, target: ObjectModel | None) -> None:
     """The straight line from the pre-grasp to the grasp; guarded for open jaws on an arm that measures the
     force at its tool (`PickConfig.approach_contact_force_n`), at the touch speed where the fingers may meet
-    the `target` (`touch_zone_m`): on a touch the arm backs off to the pre-grasp and the attempt ends
-    "collision"."""
+    the `target` (`touch_zone_m`): on a touch short of the grasp pose (by more than
+    `approach_touch_tolerance_m`) the arm backs off to the pre-grasp and the attempt ends "collision"."""
     cfg = loop.config
     T, speed, accel = grasp.T_base_tcp, cfg.linear_speed_m_s, cfg.linear_accel_m_s2
     limit = cfg.approach_contact_force_n
@@ -109,6 +109,8 @@ def approach(loop: Loop, grasp: Grasp, target: ObjectModel | None) -> None:
     if all(_guarded_leg(loop, T_leg, v, accel, limit) for T_leg, v in legs):  # stops at the first touch
         return
     short = float(np.linalg.norm(loop.arm.tcp_pose()[:3, 3] - T[:3, 3]))
+    if short <= cfg.approach_touch_tolerance_m:
+        return  # the grasp's own contact arriving: close there
     safe("back off after a touch", lambda: loop.arm.move_linear(grasp.T_base_pregrasp, speed, accel))
     raise Abort(
         "collision",

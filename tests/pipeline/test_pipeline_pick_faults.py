@@ -507,3 +507,14 @@ def test_the_wrist_target_keeps_what_the_first_view_saw_of_the_object():
     assert with_first_view(wrist, ObjectModel("target", pose)) is wrist
     bare = with_first_view(ObjectModel("target", pose), ObjectModel("target", pose, surface_points=side))
     np.testing.assert_array_equal(bare.surface_points, side)
+
+
+def test_a_touch_within_the_tolerance_of_the_grasp_pose_is_the_grasp_arriving():
+    cfg = PickConfig(reobserve=False, max_estimates=1, grasps_per_estimate=1)
+    with TouchingArm(ROBOT, touches=1, short_m=0.004) as arm, FakeGripper(object_width_m=0.05) as gripper:
+        outcome = PickAndPlace(
+            arm, gripper, Camera(), OracleEstimator(), ROBOT, "parallel_jaw", config=cfg
+        ).run(PICK)
+    # 4 mm short (tolerance 5 mm): the jaws closed there, the first grasp held, nothing backed off
+    assert outcome.success and [a.result for a in outcome.attempts] == ["success"], outcome.message
+    assert arm.guarded[-1][2] is False and arm.refused == []
