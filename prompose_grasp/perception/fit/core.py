@@ -23,14 +23,17 @@ one frame, over the rotation, the translation and the anisotropic size, from sev
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from prompose_grasp.geometry.pose9d import Pose9D
+from prompose_grasp.geometry.se3 import so3_exp
 from prompose_grasp.perception.fit.handle import _place_handle
 from prompose_grasp.perception.fit.hypotheses import (
     _initial_rotations,
@@ -43,11 +46,12 @@ from prompose_grasp.perception.fit.objective import _evaluate
 from prompose_grasp.perception.fit.observation import (
     SceneView,
     _cut_edges,
+    _Cuts,
     mask_coverage,
     observed_points,
 )
-from prompose_grasp.perception.fit.problem import _basis, _State
-from prompose_grasp.perception.fit.solver import _Problems, _solve_cold, _solve_warm
+from prompose_grasp.perception.fit.problem import _basis, _Problem, _State
+from prompose_grasp.perception.fit.solver import _optimise, _Problems, _solve_cold, _solve_warm
 from prompose_grasp.perception.fit.surface import grow_to_seen, seen_surface
 from prompose_grasp.perception.fit.symmetry import canonicalize_symmetry
 from prompose_grasp.perception.fit.types import FitConfig, FitResult
@@ -122,6 +126,11 @@ def fit_pose(
     scored = [(_evaluate(pb, st, False), st, pb, k) for st, pb, k in finals]
     value, st, pb, k_best = min(scored, key=lambda s: s[0].cost)
     shape = shapes[k_best]
+    if sym == "y_continuous" and up is not None and not warm and cfg.free_section_ratio > 0.0:
+        freed = _free_section(pb, st, shape, up, plane, cfg, view, cuts)
+        if freed is not None:
+            value, st, pb, shape = freed
+            sym = shape.symmetry
     body_axis = round_body_axis(shape) if up is not None and cfg.handle_band_tol >= 0.0 else None
     if body_axis is not None and not warm:
         placed = _place_handle(pb, st, body_axis, shape, pts, cfg)
@@ -150,6 +159,48 @@ def fit_pose(
     log.debug("fit %s: loss %.3g m^2, %d hypotheses, %d iterations", prior.name, result.loss,
               result.hypotheses, result.iterations)  # fmt: skip
     return result
+
+
+def _free_section(
+    pb_round: _Problem,
+    st: _State,
+    shape: ShapePrior,
+    up: np.ndarray,
+    plane: tuple[np.ndarray, float] | None,
+    cfg: FitConfig,
+    view: SceneView | None,
+    cuts: _Cuts,
+) -> tuple[Any, _State, _Problem, ShapePrior] | None:
+    """The round-section fit of a body of revolution released to two section widths, free of the family's
+    section aspect (`FitConfig.free_section_ratio`): a family chosen from the words ("bottle", "can") may
+    be round where the object is not (a squeeze bottle, a meat can); the data then decide. The free fit
+    starts at the round solution turned by 0 and 45 degrees about the up direction (its widths are equal
+    there, so either may grow) and is kept when its loss is under `free_section_ratio` times the round
+    solution's on the same terms; its prior is the same shape with the symmetry of an elliptical section
+    (`y_2fold`). None: the round section stays."""
+    free = dataclasses.replace(shape, symmetry="y_2fold")
+    problems = _Problems(pb_round.obs, (free,), up, plane, _basis(up, plane, "y_2fold"), cfg, view, cuts)
+    # Judged on the schedule's next-to-last stage (a coarser cloud: a fifth of the full one's cost per
+    # iteration), refined on the full clouds only when kept.
+    trial = cfg.stages[-2] if len(cfg.stages) > 1 else cfg.stages[-1]
+    pb = problems.get(0, min(trial.obs_points, len(pb_round.obs)), trial.prior_points)
+    pb.aspect_factors = pb.aspect_factors * np.array([1.0, 1.0, 0.0])  # x:z, the section, is what is freed
+    round_cost = _evaluate(pb, st, False).cost
+    best: tuple[float, _State] | None = None
+    for yaw in (0.0, 0.25 * math.pi):
+        start = _State(so3_exp(yaw * up) @ st.R, st.b.copy(), st.log_s.copy())
+        end, cost = _optimise(pb, start, trial.iterations)
+        if best is None or cost < best[0]:
+            best = (cost, end)
+    assert best is not None
+    cost, end = best
+    log.debug("free section: loss %.3g of the round section's %.3g", cost, round_cost)
+    if not (round_cost > 0.0 and cost < cfg.free_section_ratio * round_cost):
+        return None
+    full = problems.get(0, len(pb_round.obs), len(pb_round.prior_p))
+    full.aspect_factors = full.aspect_factors * np.array([1.0, 1.0, 0.0])
+    end, _ = _optimise(full, end, cfg.stages[-1].iterations)
+    return _evaluate(full, end, False), end, full, free
 
 
 def _mode(up: np.ndarray | None, plane: tuple[np.ndarray, float] | None) -> str:
