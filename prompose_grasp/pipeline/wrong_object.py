@@ -1,11 +1,11 @@
 """No wrong-object success: after the lift the prompt is estimated again; the candidate nearest the tcp and
 risen from where the object stood is what is held. When another candidate, standing where the camera saw an
-object before the pick, fits the prompt clearly better (`PickConfig.wrong_object_margin` on the calibrated
-`probability`) and about as well as the object chosen before the pick did (the held one, in the air behind
-the jaws, reads low whatever it is), or the prompt names a colour the held object clearly lacks while the
-other shows it, the object is put back (the lift line back down to its grasp pose, validated first, then
-open and retreat) and the attempt ends "wrong_object". Without probabilities, masks or a held candidate the
-check cannot judge and passes: it never invents a wrong object.
+object before the pick (or where the picked object hid it), fits the prompt clearly better
+(`PickConfig.wrong_object_margin` on the calibrated `probability`) and about as well as the object chosen
+before the pick did (the held one, in the air behind the jaws, reads low whatever it is), or the prompt names
+a colour the held object clearly lacks while the other shows it, the object is put back (the lift line back
+down to its grasp pose, validated first, then open and retreat) and the attempt ends "wrong_object". Without
+probabilities, masks or a held candidate the check cannot judge and passes: it never invents a wrong object.
 """
 
 from __future__ import annotations
@@ -31,7 +31,17 @@ from prompose_grasp.pipeline.record import Abort, RunRecord
 from prompose_grasp.pipeline.seams import ObjectEstimate
 from prompose_grasp.robot.interfaces import RGBDFrame
 
-__all__ = ["HELD_XY_SLACK_M", "STOOD_MARGIN_M", "STOOD_MIN_POINTS", "across", "put_back", "wrong_object"]
+__all__ = [
+    "HELD_XY_SLACK_M",
+    "REVEALED_GAP_M",
+    "REVEALED_MIN_POINTS",
+    "STOOD_MARGIN_M",
+    "STOOD_MIN_POINTS",
+    "across",
+    "put_back",
+    "revealed",
+    "wrong_object",
+]
 
 #: After the lift, the held object's centre lies across from the tcp by at most half its largest extent (a
 #: grasp on a side face) plus this: the estimate of an object half hidden in the hand is off by 1-2 cm [m].
@@ -43,6 +53,12 @@ STOOD_MARGIN_M = 0.01
 #: ... at least this many of them: the observation is thinned to `max_scene_points` (every 7th point of 640 x
 #: 480), which leaves ~200 on the top of a 5 cm object at 0.8 m (fx 600 px); 20 is a corner of one [-].
 STOOD_MIN_POINTS = 20
+#: A box was hidden behind the picked object before the pick (`revealed`) when this many of its 8 corners and
+#: centre project onto readings of the picked object ...
+REVEALED_MIN_POINTS = 5
+#: ... nearer than themselves by this: an occluder in front, not the same surface (depth noise at 1 m is
+#: a few mm; two objects standing one behind the other are centimetres apart) [m].
+REVEALED_GAP_M = 0.02
 #: A held object whose visible pixels are under this share of the colour the prompt names clearly is not of
 #: that colour: one that is keeps far more even half hidden by the jaws (a green bottle with a white label),
 #: while a few percent are edge pixels blended with what lies behind [-] ...
@@ -83,6 +99,37 @@ def stood_before(pose_base: Pose9D, obs: Observation) -> bool:
     return int(np.count_nonzero(inside)) >= STOOD_MIN_POINTS
 
 
+def revealed(pose_base: Pose9D, obs: Observation) -> bool:
+    """The camera could not see this box before the pick because the picked object stood in front of it:
+    at least `REVEALED_MIN_POINTS` of its 8 corners and centre project, in the pick's frame, onto readings
+    nearer than themselves by `REVEALED_GAP_M` that lie on the picked object (its box grown by
+    `STOOD_MARGIN_M`). Lifting an object shows what stood behind it: a can hidden behind a bigger one."""
+    frame = obs.frame
+    if frame is None or frame.T_base_cam is None:
+        return False
+    T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
+    pts = transform_points(invert_T(T_base_cam), np.vstack([pose_base.corners(), pose_base.t[None]]))
+    intr, depth = frame.intrinsics, np.asarray(frame.depth_m, dtype=np.float64)
+    ahead = pts[:, 2] > 0.0
+    uv = np.full((len(pts), 2), -1, dtype=np.int64)
+    uv[ahead] = np.round(intr.project(pts[ahead])).astype(np.int64)
+    ok = ahead & (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
+    d = np.zeros(len(pts))
+    d[ok] = depth[uv[ok, 1], uv[ok, 0]]
+    nearer = ok & np.isfinite(d) & (d > 0.0) & (d < pts[:, 2] - REVEALED_GAP_M)
+    if np.count_nonzero(nearer) < REVEALED_MIN_POINTS:
+        return False
+    # the nearer readings, back in base: on the picked object?
+    rays = np.column_stack(
+        [(uv[nearer, 0] - intr.cx) / intr.fx, (uv[nearer, 1] - intr.cy) / intr.fy, np.ones(int(nearer.sum()))]
+    )
+    seen_base = transform_points(T_base_cam, rays * d[nearer, None])
+    target = obs.target.pose
+    local = (seen_base - target.t) @ target.R
+    on_target = np.all(np.abs(local) <= 0.5 * np.asarray(target.size) + STOOD_MARGIN_M, axis=1)
+    return int(np.count_nonzero(on_target)) >= REVEALED_MIN_POINTS
+
+
 def wrong_object(
     loop: Loop,
     cmd: Command,
@@ -98,12 +145,12 @@ def wrong_object(
     the object's largest extent plus `HELD_XY_SLACK_M` of the tcp, across, and risen by `moved_min_m` or
     more from where the object stood: its box's centre, or its lowest seen points, `lowest_seen` per
     estimate: the 5th percentile of `verify.seen_heights`). The others count when they stand away from the
-    tcp and from where the object was picked (`SAME_PLACE_M`) and where the camera saw an object
-    before the pick (`stood_before`). Wrong: one of them fits the prompt clearly better
-    (`wrong_object_margin`) and about as well as the object chosen before the pick (`_AS_WELL_AS_TOTAL`;
-    only for a command naming one object with `candidate_order` "score"), or the prompt names a colour
-    the held object's visible pixels clearly lack (`_COLOUR_ABSENT`) while one of them shows it
-    (`_COLOUR_SHOWN`)."""
+    tcp and from where the object was picked (`SAME_PLACE_M`), where the camera saw an object before the
+    pick (`stood_before`) or could not see, behind the picked object (`revealed`). Wrong: one of them fits
+    the prompt clearly better (`wrong_object_margin`) and about as well as the object chosen before the
+    pick (`_AS_WELL_AS_TOTAL`; only for a command naming one object with `candidate_order` "score"), or the
+    prompt names a colour the held object's visible pixels clearly lack (`_COLOUR_ABSENT`) while one of
+    them shows it (`_COLOUR_SHOWN`)."""
     if len(ests) < 2:
         return None
     T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
@@ -129,7 +176,7 @@ def wrong_object(
         for k, (e, p) in enumerate(zip(ests, poses))
         if k != k_held
         and min(across(p.t, tcp), across(p.t, obs.target.pose.t)) > SAME_PLACE_M
-        and stood_before(p, obs)
+        and (stood_before(p, obs) or revealed(p, obs))
     ]
     if not standing:
         return None

@@ -15,10 +15,14 @@ import pytest
 from test_pipeline_pick_faults import PICK, ROBOT, Camera, K, OracleEstimator, RecordingArm
 
 from prompose_grasp.errors import AmbiguousObjectError, InvalidInputError
+from prompose_grasp.geometry import Pose9D
+from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.se3 import make_T
-from prompose_grasp.grasp import PlaceTarget
+from prompose_grasp.grasp import ObjectModel, PlaceTarget
 from prompose_grasp.pipeline.command import Command
+from prompose_grasp.pipeline.observe import Observation
 from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
+from prompose_grasp.pipeline.wrong_object import revealed
 from prompose_grasp.robot import FakeGripper, RGBDFrame
 from prompose_grasp.robot.fake import HOME_Q
 from prompose_grasp.robot.interfaces import LinearCommand
@@ -365,3 +369,21 @@ def test_the_margin_is_not_judged_for_a_stack_of_like_things():
 def test_wrong_object_margin_must_be_a_probability_difference():
     with pytest.raises(InvalidInputError, match="wrong_object_margin"):
         PickConfig(wrong_object_margin=1.5)
+
+
+def test_a_box_hidden_behind_the_picked_object_counts_as_revealed():
+    # The camera is the base frame, looking along +z. The picked object's front face stands 0.55 m away
+    # (a 0.1 m cube centred 0.6 m out), the background 1.5 m: the depth image a camera would read.
+    cam = CameraIntrinsics(fx=500.0, fy=500.0, cx=159.5, cy=119.5, width=320, height=240)
+    u, v = np.meshgrid(np.arange(320), np.arange(240))
+    x, y = (u - cam.cx) / cam.fx * 0.55, (v - cam.cy) / cam.fy * 0.55
+    depth = np.where((np.abs(x) <= 0.05) & (np.abs(y) <= 0.05), 0.55, 1.5).astype(np.float32)
+    frame = RGBDFrame(np.zeros((240, 320, 3), np.uint8), depth, cam, 0.0, np.eye(4))
+    picked = ObjectModel("picked", Pose9D(np.eye(3), [0.0, 0.0, 0.6], [0.1, 0.1, 0.1]))
+    obs = Observation(frame, None, picked, None, np.zeros((0, 3)), np.zeros(6))
+    # A 5 cm can right behind it was hidden by it: every corner reads the picked object's face, nearer.
+    assert revealed(Pose9D(np.eye(3), [0.0, 0.0, 0.75], [0.05, 0.05, 0.05]), obs)
+    # One beside it was in plain view (the background reads farther than its corners): not revealed.
+    assert not revealed(Pose9D(np.eye(3), [0.3, 0.0, 0.75], [0.05, 0.05, 0.05]), obs)
+    # One in front of the picked object: nothing nearer than it there.
+    assert not revealed(Pose9D(np.eye(3), [0.0, 0.0, 0.4], [0.05, 0.05, 0.05]), obs)
