@@ -112,28 +112,46 @@ def test_after_a_swap_a_success_is_the_named_object(estimator):
     assert "can" not in summary["evaluation"]["lifted_objects"]
 
 
-def test_an_object_moved_under_a_finger_is_a_protective_stop(estimator):
-    # The grasp straddles the bottle's top from above. As the fingers come down (tips ~4.5 cm above the top),
-    # the bottle is moved under the left pad: the pad lands on its top and presses it into the table. The
-    # arm's contact-force limit stops it (protective stop, the UR adapter's error); the loop ends typed, sends
-    # no other motion, and says the gripper is open.
-    def under_the_finger(world):
-        m, d = world.model, world.data
-        top = 2.0 * world.T_world_obj("bottle")[2, 3] - 0.75  # standing on the 0.75 m table: centre at half
-        tcp, pad = m.site("tcp").id, m.geom("pad_left").id
-        done = []
+def _bottle_under_the_finger(world) -> None:
+    """As the fingers come down on the bottle's top (tcp 6 cm above it), the bottle is moved under the left
+    pad: the pad lands on its top and presses it into the table."""
+    m, d = world.model, world.data
+    top = 2.0 * world.T_world_obj("bottle")[2, 3] - 0.75  # standing on the 0.75 m table: centre at half
+    tcp, pad = m.site("tcp").id, m.geom("pad_left").id
+    done = []
 
-        def hook(w):
-            above = np.linalg.norm(d.site_xpos[tcp][:2] - w.T_world_obj("bottle")[:2, 3]) < 0.05
-            if not done and above and d.site_xpos[tcp][2] < top + 0.06:
-                done.append(True)
-                T = w.T_world_obj("bottle")
-                T[:2, 3] = d.geom_xpos[pad][:2]
-                w.set_object_pose("bottle", T)
+    def hook(w):
+        above = np.linalg.norm(d.site_xpos[tcp][:2] - w.T_world_obj("bottle")[:2, 3]) < 0.05
+        if not done and above and d.site_xpos[tcp][2] < top + 0.06:
+            done.append(True)
+            T = w.T_world_obj("bottle")
+            T[:2, 3] = d.geom_xpos[pad][:2]
+            w.set_object_pose("bottle", T)
 
-        world.add_step_hook(hook)
+    world.add_step_hook(hook)
 
-    outcome, summary, _ = _episode(estimator, under_the_finger, max_estimates=1)
+
+def test_an_object_moved_under_a_finger_stops_the_guarded_approach_at_the_touch(estimator):
+    # The grasp straddles the bottle's top from above; the bottle is moved under a pad on the way down. The
+    # guarded approach stops at the touch (40 N), backs off to the pre-grasp and ends the attempt
+    # "collision": no protective stop, and the arm never pressed anywhere near the 150 N limit.
+    outcome, summary, _ = _episode(
+        estimator, _bottle_under_the_finger, max_estimates=1, grasps_per_estimate=1
+    )
+    assert outcome.reason == "collision", outcome.message
+    assert "touched something" in outcome.message and "backed off to the pre-grasp" in outcome.message
+    assert [a.result for a in outcome.attempts] == ["collision"]
+    assert summary["arm_max_external_force_n"] < 150.0
+    assert summary["evaluation"]["lifted_objects"] == []
+
+
+def test_an_object_moved_under_a_finger_of_an_unguarded_approach_is_a_protective_stop(estimator):
+    # The same, with the guard switched off: the pad presses the bottle into the table until the arm's
+    # contact-force limit stops it (protective stop, the UR adapter's error); the loop ends typed, sends no
+    # other motion, and says the gripper is open.
+    outcome, summary, _ = _episode(
+        estimator, _bottle_under_the_finger, max_estimates=1, approach_contact_force_n=None
+    )
     assert outcome.reason == "protective_stop", outcome.message
     assert "contact force" in outcome.message and "pad_left <- obj_bottle" in outcome.message
     assert "the gripper is open" in outcome.message
