@@ -381,9 +381,7 @@ class SimArm(Arm):
         `max_force_n` [N] (below `protective_stop_force_n`): the servos then hold the measured joints, as a
         controller's guarded move stops within a few milliseconds of the touch. True when the line was
         completed, False when it stopped on contact."""
-        limit = float(max_force_n) if isinstance(max_force_n, int | float) else math.nan
-        if not (math.isfinite(limit) and limit > 0):
-            raise InvalidInputError(f"max_force_n must be finite and > 0 N, got {max_force_n!r}")
+        limit = self.contact_force_limit(max_force_n)
         if self.protective_stop_force_n is not None and limit >= self.protective_stop_force_n:
             raise InvalidInputError(
                 f"max_force_n {limit:g} N must be under the protective stop's "

@@ -36,7 +36,6 @@ side by side.
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from dataclasses import dataclass
@@ -566,9 +565,7 @@ class URRtdeArm(Arm):
         difference leaves out the sensor's offset and the tool's own weight. True when the line was
         completed, False when it stopped on contact. The force is read every `poll_period_s`: at the
         approach speeds of a guarded move (a few cm/s) the arm travels a millimetre or two between reads."""
-        limit = float(max_force_n) if isinstance(max_force_n, int | float) else math.nan
-        if not (math.isfinite(limit) and limit > 0):
-            raise InvalidInputError(f"max_force_n must be finite and > 0 N, got {max_force_n!r}")
+        limit = self.contact_force_limit(max_force_n)
         command = self._linear(T_base_tcp, speed, accel, "move_linear_until_contact")
         f0 = self._tool_force("move_linear_until_contact")
         felt: list[float] = []

@@ -281,6 +281,18 @@ class Arm(Device):
         not get an unguarded move in its place."""
         raise NotImplementedError(f"{type(self).__name__} does not measure the force at its tool")
 
+    @staticmethod
+    def contact_force_limit(max_force_n: object) -> float:
+        """`max_force_n` of a guarded move as a float [N]; `InvalidInputError` unless it is finite and > 0."""
+        limit = (
+            float(max_force_n)
+            if isinstance(max_force_n, int | float) and not isinstance(max_force_n, bool)
+            else math.nan
+        )
+        if not (math.isfinite(limit) and limit > 0):
+            raise InvalidInputError(f"max_force_n must be finite and > 0 N, got {max_force_n!r}")
+        return limit
+
     @abc.abstractmethod
     def follow(self, trajectory: JointTrajectory) -> JointTrajectory:
         """Stream a timed joint trajectory; returns the validated trajectory that was sent."""
