@@ -40,6 +40,7 @@ __all__ = [
     "across",
     "put_back",
     "revealed",
+    "rose_since",
     "wrong_object",
 ]
 
@@ -85,6 +86,24 @@ def _total(est: ObjectEstimate) -> float:
 def _probability(est: ObjectEstimate) -> float:
     """The estimate's calibrated probability of being the object named (NaN when not computed)."""
     return float(getattr(est, "probability", math.nan))
+
+
+def rose_since(pose_base: Pose9D, obs: Observation, lowest_now: float, rise: float) -> bool:
+    """What the camera sees of this box now lies `rise` higher than what it saw there before the pick: its
+    lowest seen points (`lowest_now`, above the support) against the 5th percentile height of the pick's
+    observed points inside the box (grown by `STOOD_MARGIN_M`). An unmoved object shows the same surface to
+    the same camera (its top from above, down to its base from the side); a part of the lifted object
+    hanging beside the hand shows only points in the air. False where nothing was seen there before."""
+    if obs.support is None or not math.isfinite(lowest_now):
+        return False
+    P = obs.points_base
+    local = (P - pose_base.t) @ pose_base.R
+    inside = np.all(np.abs(local) <= 0.5 * np.asarray(pose_base.size) + STOOD_MARGIN_M, axis=1)
+    heights = P[inside] @ np.asarray(obs.support.normal) + obs.support.offset_m
+    heights = heights[heights > STOOD_MARGIN_M]  # the table's own points under it are not the object
+    if len(heights) < STOOD_MIN_POINTS:
+        return False
+    return lowest_now - float(np.percentile(heights, 5.0)) >= rise
 
 
 def stood_before(pose_base: Pose9D, obs: Observation) -> bool:
@@ -144,13 +163,14 @@ def wrong_object(
     The held object is the candidate nearest the tcp among those hanging under it (centre within half
     the object's largest extent plus `HELD_XY_SLACK_M` of the tcp, across, and risen by `moved_min_m` or
     more from where the object stood: its box's centre, or its lowest seen points, `lowest_seen` per
-    estimate: the 5th percentile of `verify.seen_heights`). The others count when they stand away from the
-    tcp and from where the object was picked (`SAME_PLACE_M`), where the camera saw an object before the
-    pick (`stood_before`) or could not see, behind the picked object (`revealed`). Wrong: one of them fits
-    the prompt clearly better (`wrong_object_margin`) and about as well as the object chosen before the
-    pick (`_AS_WELL_AS_TOTAL`; only for a command naming one object with `candidate_order` "score"), or the
-    prompt names a colour the held object's visible pixels clearly lack (`_COLOUR_ABSENT`) while one of
-    them shows it (`_COLOUR_SHOWN`)."""
+    estimate: the 5th percentile of `verify.seen_heights`). The others count when they stand (not
+    `rose_since`: a bowl hanging from its rim far from the tcp, seen in two pieces, is not standing) away
+    from the tcp and from where the object was picked (`SAME_PLACE_M`), where the camera saw an object
+    before the pick (`stood_before`) or could not see, behind the picked object (`revealed`). Wrong: one of
+    them fits the prompt clearly better (`wrong_object_margin`) and about as well as the object chosen
+    before the pick (`_AS_WELL_AS_TOTAL`; only for a command naming one object with `candidate_order`
+    "score"), or the prompt names a colour the held object's visible pixels clearly lack (`_COLOUR_ABSENT`)
+    while one of them shows it (`_COLOUR_SHOWN`)."""
     if len(ests) < 2:
         return None
     T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
@@ -176,6 +196,7 @@ def wrong_object(
         for k, (e, p) in enumerate(zip(ests, poses))
         if k != k_held
         and min(across(p.t, tcp), across(p.t, obs.target.pose.t)) > SAME_PLACE_M
+        and not rose_since(p, obs, lowest_seen[k], rise)
         and (stood_before(p, obs) or revealed(p, obs))
     ]
     if not standing:

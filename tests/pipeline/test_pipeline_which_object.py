@@ -18,11 +18,11 @@ from prompose_grasp.errors import AmbiguousObjectError, InvalidInputError
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.se3 import make_T
-from prompose_grasp.grasp import ObjectModel, PlaceTarget
+from prompose_grasp.grasp import ObjectModel, PlaceTarget, Plane
 from prompose_grasp.pipeline.command import Command
 from prompose_grasp.pipeline.observe import Observation
 from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
-from prompose_grasp.pipeline.wrong_object import revealed
+from prompose_grasp.pipeline.wrong_object import revealed, rose_since
 from prompose_grasp.robot import FakeGripper, RGBDFrame
 from prompose_grasp.robot.fake import HOME_Q
 from prompose_grasp.robot.interfaces import LinearCommand
@@ -387,3 +387,21 @@ def test_a_box_hidden_behind_the_picked_object_counts_as_revealed():
     assert not revealed(Pose9D(np.eye(3), [0.3, 0.0, 0.75], [0.05, 0.05, 0.05]), obs)
     # One in front of the picked object: nothing nearer than it there.
     assert not revealed(Pose9D(np.eye(3), [0.0, 0.0, 0.4], [0.05, 0.05, 0.05]), obs)
+
+
+def test_a_candidate_seen_higher_than_before_the_pick_is_not_standing():
+    rng = np.random.default_rng(0)
+    box = Pose9D(np.eye(3), [0.0, 0.0, 0.04], [0.1, 0.1, 0.08])  # 8 cm tall, on the table z = 0
+    # Before the pick a side camera saw it from its base up to its top; a top-down one saw only its top.
+    side = np.column_stack([rng.uniform(-0.05, 0.05, 400), np.full(400, -0.05), rng.uniform(0.0, 0.08, 400)])
+    top = np.column_stack([rng.uniform(-0.05, 0.05, (400, 2)), np.full(400, 0.08)])
+    table = Plane.horizontal(0.0)
+    for seen_before, lowest_unmoved in ((side, 0.006), (top, 0.08)):
+        obs = Observation(None, None, ObjectModel("t", box), table, seen_before, np.zeros(6))
+        # the same surface seen again: unmoved, standing
+        assert not rose_since(box, obs, lowest_unmoved, 0.035)
+        # what is seen there now starts 5 cm higher than before: a part of something in the air
+        assert rose_since(box, obs, lowest_unmoved + 0.05, 0.035)
+    # nothing seen there before: no evidence either way
+    empty = Observation(None, None, ObjectModel("t", box), table, np.zeros((0, 3)), np.zeros(6))
+    assert not rose_since(box, empty, 0.2, 0.035)
