@@ -30,7 +30,7 @@ from prompose_grasp.pipeline.plan import carried_target
 from prompose_grasp.pipeline.record import Abort, RunRecord
 from prompose_grasp.pipeline.verify import reobserve, verify_held
 
-__all__ = ["approach", "pick", "pick_place", "touch_zone_m"]
+__all__ = ["approach", "guards_approach", "pick", "pick_place", "touch_zone_m"]
 
 #: Place candidates examined (the planner's default 200 are all within ~0.3 m of the preferred point: a belt
 #: with one carton already at its centre had no free spot among them).
@@ -92,9 +92,8 @@ def approach(loop: Loop, grasp: Grasp, target: ObjectModel | None) -> None:
     `approach_touch_tolerance_m`) the arm backs off to the pre-grasp and the attempt ends "collision"."""
     cfg = loop.config
     T, speed, accel = grasp.T_base_tcp, cfg.linear_speed_m_s, cfg.linear_accel_m_s2
-    limit = cfg.approach_contact_force_n
-    grip = loop.gripper_geometry
-    if limit is None or not loop.arm.senses_contact or not isinstance(grip, ParallelJawGeometry):
+    limit, grip = cfg.approach_contact_force_n, loop.gripper_geometry
+    if limit is None or not guards_approach(loop) or not isinstance(grip, ParallelJawGeometry):
         safe("approach", lambda: loop.arm.move_linear(T, speed, accel))
         return
     T = np.asarray(T, dtype=np.float64)
@@ -117,6 +116,16 @@ def approach(loop: Loop, grasp: Grasp, target: ObjectModel | None) -> None:
         f"the open jaws touched something {1e3 * short:.0f} mm before the grasp pose (over {limit:g} N on "
         "the approach): a part of the object or a neighbour the plan did not know of; backed off to the "
         "pre-grasp",
+    )
+
+
+def guards_approach(loop: Loop) -> bool:
+    """The approach is guarded: a limit is set, the arm measures the force at its tool, the jaws are open
+    on the way down (a suction cup's approach ends pressed on its object by design)."""
+    return (
+        loop.config.approach_contact_force_n is not None
+        and loop.arm.senses_contact
+        and isinstance(loop.gripper_geometry, ParallelJawGeometry)
     )
 
 
@@ -190,7 +199,11 @@ def pick_place(
         with run.timed("execute"):
             loop.emit("place" if seg.holding else "execute", f"segment {seg.name}", 0.5, attempt)
             moving_closed(run)
-            safe(seg.name, functools.partial(loop.arm.follow, seg.trajectory))
+            if seg.gripper_after is GripperAction.CLOSE and guards_approach(loop):
+                # the approach's straight line, guarded as a pick's is (its end is the grasp pose)
+                approach(loop, grasp, obs.target)
+            else:
+                safe(seg.name, functools.partial(loop.arm.follow, seg.trajectory))
             if seg.gripper_after is GripperAction.CLOSE:
                 close_jaws(loop, run)
             elif seg.gripper_after is GripperAction.OPEN:

@@ -22,7 +22,7 @@ from prompose_grasp.errors import (
 from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.camera import CameraIntrinsics
 from prompose_grasp.geometry.se3 import invert_T, make_T
-from prompose_grasp.grasp import ParallelJawGeometry
+from prompose_grasp.grasp import ParallelJawGeometry, PlaceTarget
 from prompose_grasp.grasp.refine import lines_continuous
 from prompose_grasp.pipeline.command import Command
 from prompose_grasp.pipeline.outcome import REASONS, STAGES, PickOutcome
@@ -518,3 +518,20 @@ def test_a_touch_within_the_tolerance_of_the_grasp_pose_is_the_grasp_arriving():
     # 4 mm short (tolerance 5 mm): the jaws closed there, the first grasp held, nothing backed off
     assert outcome.success and [a.result for a in outcome.attempts] == ["success"], outcome.message
     assert arm.guarded[-1][2] is False and arm.refused == []
+
+
+def test_the_approach_of_a_place_command_is_guarded_too():
+    table = PlaceTarget("surface", make_T(np.eye(3), [-0.3, 0.4, 0.0]), [0.12, 0.12])
+    place = Command("put the box on the table", "place", "the box", False, "table", "the table", 1.0, 1.0)
+    cfg = PickConfig(reobserve=False, max_estimates=1, grasps_per_estimate=2)
+    with TouchingArm(ROBOT, touches=1) as arm, FakeGripper(object_width_m=0.05) as gripper:
+        outcome = PickAndPlace(
+            arm, gripper, Camera(), OracleEstimator(), ROBOT, "parallel_jaw", config=cfg,
+            place_targets={"table": table},
+        ).run(place)  # fmt: skip
+    # the first grasp's approach (a straight line inside the planned pick-and-place) touched and backed off;
+    # the second was placed
+    assert [a.result for a in outcome.attempts] == ["collision", "success"], outcome.message
+    assert outcome.success and outcome.place is not None
+    assert arm.refused == []
+    assert [g for g in arm.guarded if not g[2]] == [(cfg.approach_touch_speed_m_s, 40.0, False)]
