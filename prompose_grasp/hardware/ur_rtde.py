@@ -36,6 +36,7 @@ side by side.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -572,11 +573,22 @@ class URRtdeArm(Arm):
 
         def touched() -> bool:
             f = float(np.linalg.norm(self._tool_force("move_linear_until_contact") - f0))
-            if f > limit:
+            if f > limit or not math.isfinite(f):  # an unreadable force is no guard: stop as on a touch
                 felt.append(f)
             return bool(felt)
 
+        if not np.all(np.isfinite(f0)):
+            raise MotionFailedError(
+                f"move_linear_until_contact: the tool force reads {np.round(f0, 1).tolist()} N: no guard can "
+                "be kept on it; nothing was sent"
+            )
         self._run_linear(command, "move_linear_until_contact", touched)
+        if felt and not math.isfinite(felt[0]):
+            self._send_stop()
+            raise MotionFailedError(
+                "move_linear_until_contact: the tool force stopped reading (not finite) during the move: "
+                "stopped"
+            )
         if not felt:
             return True
         self._send_stop()

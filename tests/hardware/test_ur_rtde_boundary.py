@@ -320,3 +320,22 @@ def test_a_guarded_line_without_a_touch_completes_and_a_bad_limit_never_reaches_
                 arm.move_linear_until_contact(T, 0.05, 0.5, bad)
         assert len(log) == n  # nothing sent for a refused limit
     assert "stopL" not in log.names()
+
+
+def test_a_guarded_line_on_an_unreadable_tool_force_is_refused_or_stopped():
+    arm, _, receive, log, _ = make_arm(moving_polls=50)
+    T = ROBOT.fk_tcp(HOME_Q)
+    T[:3, 3] += [0.0, 0.0, -0.05]
+    with arm:
+        receive.tcp_force = [float("nan")] * 6  # before the move: nothing is sent
+        with pytest.raises(MotionFailedError, match="no guard can be kept"):
+            arm.move_linear_until_contact(T, 0.05, 0.5, 40.0)
+        assert "moveL" not in log.names()
+        # during the move: stopped, as on a touch, and reported
+        receive.tcp_force = [0.0] * 6
+        receive.force_at = lambda k: [0.0] * 6 if k < 3 else [float("nan")] * 6
+        with pytest.raises(MotionFailedError, match="stopped reading"):
+            arm.move_linear_until_contact(T, 0.05, 0.5, 40.0)
+        assert arm.is_connected
+    names = log.names()
+    assert names.count("moveL") == 1 and names.index("stopL") > names.index("moveL")
