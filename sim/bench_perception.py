@@ -191,22 +191,17 @@ def perceive_one(
 
 def without_robot(world: Any, frame: Any) -> Any:
     """`frame` with no depth where it sees the scene's robot, as the closed loop's first look has it
-    (`pipeline.observe.without_robot`: the arm's capsules at its joints now, margin
-    `PickConfig.self_filter_margin_m`): the links in view are never offered as objects there, so they are
-    not here either."""
-    import dataclasses
-
+    (`grasp.self_filter.without_robot` at the arm's joints now, margin `PickConfig.self_filter_margin_m`):
+    the links in view are never offered as objects there, so they are not here either."""
     from prompose_grasp.grasp import get_gripper
-    from prompose_grasp.grasp.self_filter import robot_pixel_mask, robot_self_capsules
+    from prompose_grasp.grasp.self_filter import without_robot as robot_free_frame
     from prompose_grasp.pipeline.config import PickConfig
 
     info, margin = world.robot, PickConfig().self_filter_margin_m
     if info is None or info.gripper is None or margin is None or frame.T_base_cam is None:
         return frame
     q = world.data.qpos[info.qpos_adr].copy()
-    capsules = robot_self_capsules(info.robot, get_gripper(info.gripper), q)
-    on_robot = robot_pixel_mask(frame.depth_m, frame.intrinsics, frame.T_base_cam, capsules, margin)
-    return dataclasses.replace(frame, depth_m=np.where(on_robot, np.float32(0.0), frame.depth_m))
+    return robot_free_frame(frame, info.robot, get_gripper(info.gripper), q, margin)
 
 
 def _extent_along(R: np.ndarray, size: np.ndarray, direction: np.ndarray) -> float:

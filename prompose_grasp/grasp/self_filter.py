@@ -3,11 +3,13 @@
 A camera that sees the arm (a fixed camera with the arm parked in view, or the wrist camera seeing its own
 gripper) would otherwise offer a link as an object to ground, and a reading off the arm would stand in the
 collision scene as an obstacle. The robot is modelled by its link capsules at the joints of the capture plus
-one capsule around the gripper (`robot_self_capsules`); `robot_pixel_mask` marks the pixels on them.
+one capsule around the gripper (`robot_self_capsules`); `robot_pixel_mask` marks the pixels on them, and
+`without_robot` drops their depth readings from a frame.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
@@ -18,9 +20,10 @@ from prompose_grasp.geometry.distance import segment_distance
 from prompose_grasp.geometry.pointcloud import back_project, valid_depth_mask
 from prompose_grasp.geometry.se3 import as_transform, invert_T, transform_points
 from prompose_grasp.grasp.grippers import ParallelJawGeometry, SuctionCupGeometry
+from prompose_grasp.robot.interfaces import RGBDFrame
 from prompose_grasp.robot.model import RobotModel
 
-__all__ = ["robot_pixel_mask", "robot_self_capsules"]
+__all__ = ["robot_pixel_mask", "robot_self_capsules", "without_robot"]
 
 
 def robot_self_capsules(
@@ -141,3 +144,20 @@ def robot_pixel_mask(
         on_ray = np.isfinite(front) & (rng >= front - band) & (rng <= back + band)
         out.ravel()[idx[on_ray]] = True
     return out
+
+
+def without_robot(
+    frame: RGBDFrame,
+    robot: RobotModel,
+    gripper: ParallelJawGeometry | SuctionCupGeometry,
+    q: np.ndarray,
+    margin_m: float,
+) -> RGBDFrame:
+    """`frame` (with its `T_base_cam`) with no depth reading where it sees the robot at joints `q`
+    (`robot_pixel_mask` within `margin_m` of `robot_self_capsules`); the same frame when it sees none."""
+    assert frame.T_base_cam is not None
+    capsules = robot_self_capsules(robot, gripper, q)
+    on_robot = robot_pixel_mask(frame.depth_m, frame.intrinsics, frame.T_base_cam, capsules, margin_m)
+    if not on_robot.any():
+        return frame
+    return dataclasses.replace(frame, depth_m=np.where(on_robot, np.float32(0.0), frame.depth_m))

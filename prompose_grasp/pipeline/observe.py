@@ -8,7 +8,6 @@ hand-eye calibration and the depth registration hold for one mode).
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -19,7 +18,7 @@ import numpy as np
 from prompose_grasp.errors import AmbiguousObjectError, CameraError, InvalidInputError, ObjectNotFoundError
 from prompose_grasp.geometry.se3 import transform_points
 from prompose_grasp.grasp import ObjectModel, Plane
-from prompose_grasp.grasp.self_filter import robot_pixel_mask, robot_self_capsules
+from prompose_grasp.grasp.self_filter import without_robot as robot_free_frame
 from prompose_grasp.pipeline.describe import describe_contenders
 from prompose_grasp.pipeline.loop import Loop
 from prompose_grasp.pipeline.record import Abort, RunRecord
@@ -100,12 +99,11 @@ def without_robot(loop: Loop, frame: RGBDFrame) -> RGBDFrame:
     if margin is None:
         return frame
     assert frame.T_base_cam is not None  # `capture` refuses frames without one
-    capsules = robot_self_capsules(loop.robot, loop.gripper_geometry, loop.arm.joint_positions())
-    on_robot = robot_pixel_mask(frame.depth_m, frame.intrinsics, frame.T_base_cam, capsules, margin)
-    if not on_robot.any():
-        return frame
-    logger.debug("self-filter: %d depth pixels on the robot dropped", int(on_robot.sum()))
-    return dataclasses.replace(frame, depth_m=np.where(on_robot, np.float32(0.0), frame.depth_m))
+    seen = robot_free_frame(frame, loop.robot, loop.gripper_geometry, loop.arm.joint_positions(), margin)
+    if seen is not frame and logger.isEnabledFor(logging.DEBUG):
+        dropped = int(np.count_nonzero(frame.depth_m > 0) - np.count_nonzero(seen.depth_m > 0))
+        logger.debug("self-filter: %d depth pixels on the robot dropped", dropped)
+    return seen
 
 
 def estimates(
