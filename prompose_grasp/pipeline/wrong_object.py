@@ -88,6 +88,22 @@ def _probability(est: ObjectEstimate) -> float:
     return float(getattr(est, "probability", math.nan))
 
 
+def _in_box(points: np.ndarray, pose_base: Pose9D, grow_m: float) -> np.ndarray:
+    """(N,) bool: the base-frame `points` inside the box `pose_base` grown by `grow_m` on every side."""
+    local = (points - pose_base.t) @ pose_base.R
+    return np.all(np.abs(local) <= 0.5 * np.asarray(pose_base.size) + grow_m, axis=1)
+
+
+def _heights_before(pose_base: Pose9D, obs: Observation) -> np.ndarray:
+    """Heights above the support [m] of the pick's observed points inside the box grown by `STOOD_MARGIN_M`,
+    those more than that above it (the table's own points under the box are not an object's); the
+    observation must have a support."""
+    assert obs.support is not None
+    P = obs.points_base[_in_box(obs.points_base, pose_base, STOOD_MARGIN_M)]
+    heights = P @ np.asarray(obs.support.normal) + obs.support.offset_m
+    return heights[heights > STOOD_MARGIN_M]
+
+
 def rose_since(pose_base: Pose9D, obs: Observation, lowest_now: float, rise: float) -> bool:
     """What the camera sees of this box now lies `rise` higher than what it saw there before the pick: its
     lowest seen points (`lowest_now`, above the support) against the 5th percentile height of the pick's
@@ -96,11 +112,7 @@ def rose_since(pose_base: Pose9D, obs: Observation, lowest_now: float, rise: flo
     hanging beside the hand shows only points in the air. False where nothing was seen there before."""
     if obs.support is None or not math.isfinite(lowest_now):
         return False
-    P = obs.points_base
-    local = (P - pose_base.t) @ pose_base.R
-    inside = np.all(np.abs(local) <= 0.5 * np.asarray(pose_base.size) + STOOD_MARGIN_M, axis=1)
-    heights = P[inside] @ np.asarray(obs.support.normal) + obs.support.offset_m
-    heights = heights[heights > STOOD_MARGIN_M]  # the table's own points under it are not the object
+    heights = _heights_before(pose_base, obs)
     if len(heights) < STOOD_MIN_POINTS:
         return False
     return lowest_now - float(np.percentile(heights, 5.0)) >= rise
@@ -109,13 +121,9 @@ def rose_since(pose_base: Pose9D, obs: Observation, lowest_now: float, rise: flo
 def stood_before(pose_base: Pose9D, obs: Observation) -> bool:
     """The camera saw an object inside this box before the pick: `STOOD_MIN_POINTS` of the pick's observed
     points in it (grown by `STOOD_MARGIN_M`), above its support plane (without a plane: in the box)."""
-    P = obs.points_base
-    local = (P - pose_base.t) @ pose_base.R
-    grow = STOOD_MARGIN_M if obs.support is not None else 0.0
-    inside = np.all(np.abs(local) <= 0.5 * np.asarray(pose_base.size) + grow, axis=1)
-    if obs.support is not None:
-        inside &= P @ np.asarray(obs.support.normal) + obs.support.offset_m > STOOD_MARGIN_M
-    return int(np.count_nonzero(inside)) >= STOOD_MIN_POINTS
+    if obs.support is None:
+        return int(np.count_nonzero(_in_box(obs.points_base, pose_base, 0.0))) >= STOOD_MIN_POINTS
+    return len(_heights_before(pose_base, obs)) >= STOOD_MIN_POINTS
 
 
 def revealed(pose_base: Pose9D, obs: Observation) -> bool:
@@ -143,9 +151,7 @@ def revealed(pose_base: Pose9D, obs: Observation) -> bool:
         [(uv[nearer, 0] - intr.cx) / intr.fx, (uv[nearer, 1] - intr.cy) / intr.fy, np.ones(int(nearer.sum()))]
     )
     seen_base = transform_points(T_base_cam, rays * d[nearer, None])
-    target = obs.target.pose
-    local = (seen_base - target.t) @ target.R
-    on_target = np.all(np.abs(local) <= 0.5 * np.asarray(target.size) + STOOD_MARGIN_M, axis=1)
+    on_target = _in_box(seen_base, obs.target.pose, STOOD_MARGIN_M)
     return int(np.count_nonzero(on_target)) >= REVEALED_MIN_POINTS
 
 
