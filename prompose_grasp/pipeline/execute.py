@@ -92,10 +92,11 @@ def approach(loop: Loop, grasp: Grasp, target: ObjectModel | None) -> None:
     `approach_touch_tolerance_m`) the arm backs off to the pre-grasp and the attempt ends "collision"."""
     cfg = loop.config
     T, speed, accel = grasp.T_base_tcp, cfg.linear_speed_m_s, cfg.linear_accel_m_s2
-    limit, grip = cfg.approach_contact_force_n, loop.gripper_geometry
-    if limit is None or not guards_approach(loop) or not isinstance(grip, ParallelJawGeometry):
+    if not guards_approach(loop):
         safe("approach", lambda: loop.arm.move_linear(T, speed, accel))
         return
+    limit, grip = cfg.approach_contact_force_n, loop.gripper_geometry
+    assert limit is not None and isinstance(grip, ParallelJawGeometry)  # `guards_approach` checked both
     T = np.asarray(T, dtype=np.float64)
     line = T[:3, 3] - np.asarray(grasp.T_base_pregrasp)[:3, 3]
     length = float(np.linalg.norm(line))

@@ -107,12 +107,14 @@ def with_first_view(target: ObjectModel, first: ObjectModel) -> ObjectModel:
     two looks, and each camera sees parts of it the other does not (from above, the wrist sees tops; the
     fixed camera sees sides, an ear or a spout that a fit from above leaves out). The grasp planner keeps the
     jaws off all of it (`grasp.planner`, "collision_seen")."""
-    views = [
-        v.surface_points for v in (target, first) if v.surface_points is not None and len(v.surface_points)
-    ]
-    if not views or (len(views) == 1 and views[0] is target.surface_points):
+    wrist, fixed = (
+        v.surface_points if v.surface_points is not None and len(v.surface_points) else None
+        for v in (target, first)
+    )
+    if fixed is None:
         return target
-    return dataclasses.replace(target, surface_points=np.concatenate(views))
+    joined = fixed if wrist is None else np.concatenate([wrist, fixed])
+    return dataclasses.replace(target, surface_points=joined)
 
 
 def wrist_mount(loop: Loop) -> np.ndarray | None:

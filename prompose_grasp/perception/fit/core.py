@@ -183,8 +183,9 @@ def _free_section(
     # Judged on the schedule's next-to-last stage (a coarser cloud: a fifth of the full one's cost per
     # iteration), refined on the full clouds only when kept.
     trial = cfg.stages[-2] if len(cfg.stages) > 1 else cfg.stages[-1]
-    pb = problems.get(0, min(trial.obs_points, len(pb_round.obs)), trial.prior_points)
-    pb.aspect_factors = pb.aspect_factors * np.array([1.0, 1.0, 0.0])  # x:z, the section, is what is freed
+    pb = _without_section_aspect(
+        problems.get(0, min(trial.obs_points, len(pb_round.obs)), trial.prior_points)
+    )
     round_cost = _evaluate(pb, st, False).cost
     best: tuple[float, _State] | None = None
     for yaw in (0.0, 0.25 * math.pi):
@@ -197,10 +198,15 @@ def _free_section(
     log.debug("free section: loss %.3g of the round section's %.3g", cost, round_cost)
     if not (round_cost > 0.0 and cost < cfg.free_section_ratio * round_cost):
         return None
-    full = problems.get(0, len(pb_round.obs), len(pb_round.prior_p))
-    full.aspect_factors = full.aspect_factors * np.array([1.0, 1.0, 0.0])
+    full = _without_section_aspect(problems.get(0, len(pb_round.obs), len(pb_round.prior_p)))
     end, _ = _optimise(full, end, cfg.stages[-1].iterations)
     return _evaluate(full, end, False), end, full, free
+
+
+def _without_section_aspect(pb: _Problem) -> _Problem:
+    """`pb` with no prior on the x:z aspect (the section's, which a free-section fit frees)."""
+    pb.aspect_factors = pb.aspect_factors * np.array([1.0, 1.0, 0.0])
+    return pb
 
 
 def _mode(up: np.ndarray | None, plane: tuple[np.ndarray, float] | None) -> str:
