@@ -9,51 +9,16 @@ from __future__ import annotations
 
 import inspect
 import time
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
-import trimesh
+from test_pipeline_pick_faults import JAW, PICK, ROBOT, Camera, OracleEstimator
 
-from prompose_grasp.geometry import Pose9D
-from prompose_grasp.geometry.camera import CameraIntrinsics
-from prompose_grasp.geometry.se3 import invert_T, make_T
-from prompose_grasp.grasp import ParallelJawGeometry
-from prompose_grasp.pipeline.command import Command
 from prompose_grasp.pipeline.pick_and_place import PickAndPlace, PickConfig
 from prompose_grasp.pipeline.recording import ObservedArm
 from prompose_grasp.recorder import NULL_RECORDER, Recorder
-from prompose_grasp.robot import FakeArm, FakeGripper, RGBDFrame, load_robot
+from prompose_grasp.robot import FakeArm, FakeGripper
 from prompose_grasp.robot.interfaces import JointCommand
-
-JAW = ParallelJawGeometry()
-ROBOT = load_robot("ur5e", tcp_offset=JAW.T_flange_tcp)
-R_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # object +y -> base +z
-T_BASE_CAM = make_T(np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]]), [-0.5, 0.0, 1.0])  # 1 m up, down
-K = CameraIntrinsics(fx=300.0, fy=300.0, cx=79.5, cy=59.5, width=160, height=120)
-PICK = Command("pick up the box", "pick", "the box", False, None, "", 1.0, 0.0)
-
-
-class Camera:
-    """Frames of a flat table 1 m below the camera."""
-
-    def capture(self) -> RGBDFrame:
-        depth = np.full((K.height, K.width), 1.0, dtype=np.float32)
-        return RGBDFrame(np.zeros((K.height, K.width, 3), np.uint8), depth, K, 0.0, T_BASE_CAM)
-
-
-class OracleEstimator:
-    """A 5 x 6 x 6 cm box standing at base (-0.5, 0.15, 0.03), in each frame's camera frame."""
-
-    def estimate(self, frame, prompt):
-        T_cam_base = invert_T(frame.T_base_cam)
-        pose = Pose9D(R_UP, np.array([-0.5, 0.15, 0.03]), (0.05, 0.06, 0.06)).transformed(T_cam_base)
-        mesh = trimesh.creation.box(extents=pose.size)
-        mesh.apply_transform(pose.to_matrix())
-        n_cam = T_cam_base[:3, :3] @ np.array([0.0, 0.0, 1.0])
-        plane = SimpleNamespace(normal_cam=n_cam, offset_m=-float(n_cam @ T_cam_base[:3, 3]))
-        prior = SimpleNamespace(name="box", symmetry="box")
-        return SimpleNamespace(pose=pose, prior=prior, mesh_cam=mesh, support_plane=plane)
 
 
 class Collecting(Recorder):
