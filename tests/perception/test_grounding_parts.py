@@ -594,6 +594,24 @@ def test_a_screen_leaning_back_joins_its_base_and_a_box_does_not():
         ("the object nearest to the camera", "object", "object", (), None, "nearest", None, None),
         ("the farthest gray bottle", "gray bottle", "bottle", ("grey",), None, "farthest", None, None),
         ("the mug on the left", "mug", "mug", (), None, "leftmost", None, None),
+        # a colour word that names a content or a product, or the fruit itself, asks for no colour
+        ("the olive oil bottle", "olive oil bottle", "olive oil bottle", (), None, None, None, None),
+        ("the red wine bottle", "red wine bottle", "red wine bottle", (), None, None, None, None),
+        (
+            "the green olive oil bottle",
+            "green olive oil bottle",
+            "olive oil bottle",
+            ("green",),
+            None,
+            None,
+            None,
+            None,
+        ),
+        ("pick up the orange", "orange", "orange", (), None, None, None, None),
+        ("the small lime", "small lime", "lime", (), ("volume", -1, False), None, None, None),
+        ("the orange ball", "orange ball", "ball", ("orange",), None, None, None, None),
+        ("the orange one", "orange one", "", ("orange",), None, None, None, None),
+        ("the orange left of the lime", "orange", "orange", (), None, None, "left_of", "lime"),
     ],
 )
 def test_parse_prompt(prompt, text, noun, colours, size, position, relation, ref_noun):

@@ -101,7 +101,7 @@ def test_names_and_synonyms_retrieve_their_entry_at_full_weight(knowledge, noun,
 
 def test_an_unseen_name_falls_to_its_nearest_entries_with_less_weight(knowledge):
     # no name or synonym of the table: the nearest kinds (soft toys), weighted down
-    match = knowledge.lookup("plush giraffe")
+    match = knowledge.lookup("plush dolphin")
     assert match is not None and 0.0 < match.weight < 1.0
     assert all(e.category == "toy" for e in match.entries)
     assert not match.entries[0].rigid
@@ -258,3 +258,10 @@ def test_a_product_the_table_names_more_closely_than_the_library_is_judged_by_it
     assert closer and tuna[0] > tuna[1]
     _, closer = totals("the can")
     assert not closer
+
+
+@pytest.mark.parametrize("animal", ["elephant", "giraffe", "lion"])
+def test_an_animal_named_on_a_table_is_a_toy_figure(knowledge, animal):
+    """On a table an animal's name means a figure of it: the toy-animal entry at (about) full weight, 5-20 cm."""
+    match = knowledge.lookup(animal)
+    assert match is not None and match.weight > 0.9 and match.entry.name == "toy animal"

@@ -12,7 +12,10 @@ Handled forms (case and punctuation are ignored):
 
 - command verbs and fillers in front are dropped: "pick up the red mug" -> "red mug"; a destination
   after put / place / move / drop ("put the can in the bin") is dropped;
-- colour words (`COLOUR_WORDS`: palette names and common synonyms such as "gray", "violet", "navy");
+- colour words (`COLOUR_WORDS`: palette names and common synonyms such as "gray", "violet", "navy"),
+  except where the word names the thing, not its colour: in a compound naming a content or a product
+  ("olive oil bottle", "orange juice carton", "red wine bottle": `COLOUR_COMPOUNDS`), and as the noun itself
+  when nothing else names the object ("the orange", "the small lime": `COLOUR_NOUNS`);
 - size words: superlatives "largest / biggest / smallest / tallest / shortest / longest" (ranked among
   the candidates) and adjectives "big / large / small / little / tiny / tall / short / long";
 - relations to a reference object: "X left of Y", "X to the right of Y", "X behind Y", "X in front of Y",
@@ -29,7 +32,16 @@ from dataclasses import dataclass
 
 from prompose_grasp.errors import InvalidInputError
 
-__all__ = ["COLOUR_WORDS", "GENERIC_NOUNS", "ParsedPrompt", "check_prompt", "fold_text", "parse_prompt"]
+__all__ = [
+    "COLOUR_COMPOUNDS",
+    "COLOUR_NOUNS",
+    "COLOUR_WORDS",
+    "GENERIC_NOUNS",
+    "ParsedPrompt",
+    "check_prompt",
+    "fold_text",
+    "parse_prompt",
+]
 
 #: word -> palette name (`describe.PALETTE`)
 COLOUR_WORDS: dict[str, str] = {
@@ -46,6 +58,23 @@ COLOUR_WORDS: dict[str, str] = {
     "white": "white",
     "grey": "grey", "gray": "grey", "silver": "grey",
 }  # fmt: skip
+
+#: A colour word followed by one of these words names what the object holds or which product it is, not the
+#: object's colour: an olive oil bottle is clear or dark green glass, a red wine bottle green, an orange juice
+#: carton printed white; the pair stays in the noun and asks for no colour.
+COLOUR_COMPOUNDS: dict[str, frozenset[str]] = {
+    "olive": frozenset({"oil"}),
+    "orange": frozenset({"juice", "soda", "marmalade"}),
+    "lime": frozenset({"juice"}),
+    "red": frozenset({"wine", "bull", "beans", "lentils"}),
+    "white": frozenset({"wine", "vinegar", "out", "rice", "beans", "board"}),
+    "green": frozenset({"tea", "beans", "peas", "olives"}),
+    "black": frozenset({"tea", "pepper", "beans", "olives", "board"}),
+    "brown": frozenset({"sugar", "rice"}),
+}
+#: Colour words that are also things (fruits): the noun when no other word names the object ("pick up the
+#: orange"), a colour when one does ("the orange ball").
+COLOUR_NOUNS = frozenset({"orange", "lime", "olive"})
 
 #: superlative / adjective -> (measure, direction, strong): measure is "volume", "height" or "length";
 #: direction +1 prefers bigger values; strong marks superlatives (ranked, weighted higher).
@@ -202,18 +231,41 @@ def _parse_phrase(text: str, allow_relation: bool) -> ParsedPrompt:
             rest = pattern.sub(" ", rest)
             break
     words = rest.split()
-    colours = tuple(dict.fromkeys(COLOUR_WORDS[w] for w in words if w in COLOUR_WORDS))
     size = None
     for w in words:
         if w in _SIZE_WORDS and (size is None or (_SIZE_WORDS[w][2] and not size[2])):
             size = _SIZE_WORDS[w]
+    colour_at = _colour_positions(words)
+    colours = tuple(dict.fromkeys(COLOUR_WORDS[words[i]] for i in colour_at))
     noun_words = [
         w
-        for w in words
-        if w not in _ARTICLES and w not in COLOUR_WORDS and w not in _SIZE_WORDS and w not in _FILLERS
+        for i, w in enumerate(words)
+        if w not in _ARTICLES and i not in colour_at and w not in _SIZE_WORDS and w not in _FILLERS
     ]
     clean_text = " ".join(w for w in words if w not in _ARTICLES)
     return ParsedPrompt(clean_text or text, " ".join(noun_words), colours, size, position)
+
+
+def _colour_positions(words: list[str]) -> list[int]:
+    """Indices of the words read as colours: colour words, less those naming a content or product with the
+    next word (`COLOUR_COMPOUNDS`) and a fruit's name left as the only noun (`COLOUR_NOUNS`)."""
+    at = [
+        i
+        for i, w in enumerate(words)
+        if w in COLOUR_WORDS and not (i + 1 < len(words) and words[i + 1] in COLOUR_COMPOUNDS.get(w, ()))
+    ]
+    # "one" and "thing" name no kind, but say that the colour word before them is a colour
+    named = [
+        w
+        for i, w in enumerate(words)
+        if i not in at
+        and w not in _ARTICLES
+        and w not in _SIZE_WORDS
+        and (w in GENERIC_NOUNS or w not in _FILLERS)
+    ]
+    if not named and at and words[at[-1]] in COLOUR_NOUNS:
+        at = at[:-1]  # "the orange", "the small lime": the fruit
+    return at
 
 
 def parse_prompt(prompt: str) -> ParsedPrompt:
