@@ -262,6 +262,6 @@ def test_a_product_the_table_names_more_closely_than_the_library_is_judged_by_it
 
 @pytest.mark.parametrize("animal", ["elephant", "giraffe", "lion"])
 def test_an_animal_named_on_a_table_is_a_toy_figure(knowledge, animal):
-    """On a table an animal's name means a figure of it: the toy-animal entry at (about) full weight, 5-20 cm."""
+    """On a table an animal's name means a figure of it: the toy-animal entry (5-20 cm), near full weight."""
     match = knowledge.lookup(animal)
     assert match is not None and match.weight > 0.9 and match.entry.name == "toy animal"
