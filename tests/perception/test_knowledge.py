@@ -265,3 +265,29 @@ def test_an_animal_named_on_a_table_is_a_toy_figure(knowledge, animal):
     """On a table an animal's name means a figure of it: the toy-animal entry (5-20 cm), near full weight."""
     match = knowledge.lookup(animal)
     assert match is not None and match.weight > 0.9 and match.entry.name == "toy animal"
+
+
+def test_a_noun_without_a_library_family_is_shaped_by_its_entry_not_by_how_the_word_reads():
+    """ "elephant" has no family in the prior library; its words read nearest "a long thin object" among the
+    family sentences, which would favour a banana-shaped candidate. The table says a toy animal is irregular:
+    a candidate reading long and thin and one reading cylindrical, alike in everything else, tie. For "the
+    knife" (elongated in the table) the long thin one wins."""
+    from prompose_grasp.perception.grounding.grounder import Grounder
+    from prompose_grasp.perception.grounding.score import candidate_totals
+    from prompose_grasp.perception.grounding.types import GroundingConfig
+
+    g = Grounder(GroundingConfig())
+    grey = np.zeros(len(PALETTE))
+    grey[PALETTE.index("grey")] = 1.0
+
+    def totals(prompt: str, extents: list[list[float]]) -> np.ndarray:
+        parsed = parse_prompt(prompt)
+        prior, match = g._prior_for(parsed, True), g._knowledge_for(parsed)
+        assert prior is None and match is not None and match.weight > 0.9
+        feats = _feats(extents, ["elongated", "cylinder"], [grey, grey])
+        return candidate_totals(parsed, feats, g._shape_prob(parsed), None, g.weights, knowledge=match)
+
+    elephant = totals("the elephant", [[0.12, 0.06, 0.09]] * 2)
+    assert elephant[0] == pytest.approx(elephant[1])
+    knife = totals("the knife", [[0.21, 0.02, 0.01], [0.21, 0.09, 0.09]])
+    assert knife[0] > knife[1]

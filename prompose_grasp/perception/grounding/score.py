@@ -7,7 +7,7 @@ cosine):
 |---|---|---|
 | semantic | cosine (MiniLM) of the prompt's target phrase and the candidate's description | 1.0 |
 | colour | +1 when >= 40 % of the mask has an asked colour, falling linearly to -1 at 0 % | 1.5 |
-| shape | fit of the measured shape family to the noun: p(family | noun) / max p, to [-1, 1] (*) | 0.5 |
+| shape | fit of the measured shape family to the noun: p(family | noun) / max p, to [-1, 1] (*) (***) | 0.5 |
 | metric size | log-normal fit of the measured extents to the typical size of the noun's prior family | 1.5 |
 | top heights | overlap of the candidate's and the family mesh's top-height histograms, to [-1, 1] | 1.5 |
 | handle | a handle seen: +1 when the noun's family mesh has one, -1 when it has none; 0 unseen | 1.0 |
@@ -24,6 +24,7 @@ cosine):
 (*) A box/cylinder reading near its threshold (`describe.shape_families`): the mean of both readings' fits.
 (**) Times the weight of the knowledge table's match for the noun (`knowledge.KnowledgeMatch.weight`: 1 for
 a name or synonym of the table, less for the nearest entries of an unseen name, no term without a match).
+(***) For a noun the library has no family for and the table knows: the entry's coarse shape (below).
 
 The colour weight is the largest single-term weight because a colour word is the most reliable thing a
 prompt says about an image. Ranking terms (superlatives, positions) only rank the *plausible* candidates:
@@ -103,7 +104,11 @@ above the library's, and a weight of at least 0.5: "sugar box" is an entry, the 
 its size range and coarse shape replace the family's typical size and shape: the metric size term, the
 family's shape term and the rival families' term are left out (a tuna can is a short cylinder that reads
 flat, and the can family's shape had preferred a slim marker to it); for a family's own name ("bowl") all
-count.
+count. When the library has no family for the noun and the table has an entry (weight at least 0.5:
+"stapler", "elephant", "eyeglasses"), the shape term reads the entry's coarse shape in place of the noun's
+similarity to the family sentences: those sentences guess a shape from how the word reads ("elephant" lands
+nearest "a long thin object", "eyeglasses" nearest "a cylindrical object"), which for a word they were not
+written for is noise that had decided picks between look-alike sizes.
 
 The returned score is sigmoid(2 (total - 1)): in (0, 1), monotone in the total, comparable within a prompt.
 The totals themselves (`candidate_totals`) give the calibrated match probabilities (`confidence`).
@@ -127,6 +132,7 @@ __all__ = [
     "RivalReadings",
     "ScoringWeights",
     "candidate_totals",
+    "coarse_shape_fits",
     "knowledge_size_term",
     "knowledge_terms",
     "knows_more_than_family",
@@ -264,13 +270,19 @@ def knowledge_terms(
         # takes at most `knowledge_colour_miss` (a blue bowl is still a bowl)
         full = np.clip(share / w.knowledge_colour_full_share, 0.0, 1.0)
         total += w.knowledge_colour * ((1.0 + w.knowledge_colour_miss) * full - w.knowledge_colour_miss)
+    total += w.knowledge_shape * coarse_shape_fits(match, feats)
+    return match.weight * total
+
+
+def coarse_shape_fits(match: Any, feats: CandidateFeatures) -> np.ndarray:
+    """(K,) in [-1, 1]: each candidate's measured shape family against the coarse shapes of a
+    `knowledge.KnowledgeMatch` (`SHAPE_FIT`, the best of its shapes)."""
     fits = np.array([max(SHAPE_FIT[s][f] for s in match.shapes) for f in feats.families])
     if "elongated" in match.shapes:
         # a long thin kind stands as well as it lies (a flashlight, a toothpaste tube on its cap): its
         # extents tell it whatever the family its footprint reads (a standing one reads cylindrical)
         fits = np.where(_long_thin(feats.extents_m), 1.0, fits)
-    total += w.knowledge_shape * fits
-    return match.weight * total
+    return fits
 
 
 def metric_size_term(extents_m: np.ndarray, typical_extent_m: np.ndarray, w: ScoringWeights) -> np.ndarray:
@@ -348,14 +360,12 @@ _SAME_MATCH = 1e-6
 
 def knows_more_than_family(knowledge: Any, noun_prior: NounPrior | None, w: ScoringWeights) -> bool:
     """True when the knowledge table names the prompt's object more closely than the prior library's family
-    does (a product, "sugar box", against the box family): its size range and coarse shape then stand for the
-    family's typical size and shape."""
-    return (
-        knowledge is not None
-        and noun_prior is not None
-        and knowledge.weight >= w.knowledge_replaces_family_size
-        and knowledge.similarity > noun_prior.match_score + _SAME_MATCH
-    )
+    does (a product, "sugar box", against the box family), or names it where the library has no family for
+    it ("stapler", "elephant"): its size range and coarse shape then stand for the family's typical size and
+    for the shape read from the noun's words."""
+    if knowledge is None or knowledge.weight < w.knowledge_replaces_family_size:
+        return False
+    return noun_prior is None or knowledge.similarity > noun_prior.match_score + _SAME_MATCH
 
 
 def _base_terms(
@@ -389,6 +399,10 @@ def _base_terms(
         # the family reads the footprint: a long thin thing standing up reads cylindrical, and is long and
         # thin all the same
         total += w.shape * np.where(_long_thin(feats.extents_m), np.maximum(fits, fit("elongated")), fits)
+    elif knows_better and noun_prior is None:
+        # the library has no family for the noun: what its words read like ("elephant" near "a long thin
+        # object", "eyeglasses" near "a cylindrical object") is a guess, the table's coarse shape is known
+        total += w.shape * knowledge.weight * coarse_shape_fits(knowledge, feats)
     if knowledge is not None:
         total += knowledge_terms(parsed, feats, knowledge, w)
     if noun_prior is not None and parsed.size is None and not knows_better:
