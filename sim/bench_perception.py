@@ -125,7 +125,7 @@ def perceive_one(
     }
     with build_scene(spec, seed=seed) as world:
         camera = next(c["name"] for c in spec.cameras if "pose" in c)
-        frame = without_robot(world, world.render(camera, rng=np.random.default_rng(seed)))
+        frame = as_the_loop_sees(world, world.render(camera, rng=np.random.default_rng(seed)))
         instances = world.ground_truth_mask(camera)
         names = {o.instance_id: o.name for o in world.objects}
         gts = {g.name: g for g in world.ground_truth(camera)}
@@ -189,19 +189,24 @@ def perceive_one(
     return row
 
 
-def without_robot(world: Any, frame: Any) -> Any:
-    """`frame` with no depth where it sees the scene's robot, as the closed loop's first look has it
-    (`grasp.self_filter.without_robot` at the arm's joints now, margin `PickConfig.self_filter_margin_m`):
-    the links in view are never offered as objects there, so they are not here either."""
+def as_the_loop_sees(world: Any, frame: Any) -> Any:
+    """`frame` as the closed loop's first look has it: no depth where it sees the scene's robot
+    (`grasp.self_filter.without_robot` at the arm's joints now, margin `PickConfig.self_filter_margin_m`) or
+    the cell's bin (`grasp.bins.without_bins`): neither is offered as an object there, so neither is
+    here."""
     from prompose_grasp.grasp import get_gripper
-    from prompose_grasp.grasp.self_filter import without_robot as robot_free_frame
+    from prompose_grasp.grasp.bins import without_bins
+    from prompose_grasp.grasp.self_filter import without_robot
     from prompose_grasp.pipeline.config import PickConfig
+    from sim.cell import place_targets_of
 
-    info, margin = world.robot, PickConfig().self_filter_margin_m
-    if info is None or info.gripper is None or margin is None or frame.T_base_cam is None:
+    if frame.T_base_cam is None:
         return frame
-    q = world.data.qpos[info.qpos_adr].copy()
-    return robot_free_frame(frame, info.robot, get_gripper(info.gripper), q, margin)
+    info, margin = world.robot, PickConfig().self_filter_margin_m
+    if info is not None and info.gripper is not None and margin is not None:
+        q = world.data.qpos[info.qpos_adr].copy()
+        frame = without_robot(frame, info.robot, get_gripper(info.gripper), q, margin)
+    return without_bins(frame, list(place_targets_of(world).values()))
 
 
 def _extent_along(R: np.ndarray, size: np.ndarray, direction: np.ndarray) -> float:

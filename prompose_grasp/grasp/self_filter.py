@@ -4,7 +4,8 @@ A camera that sees the arm (a fixed camera with the arm parked in view, or the w
 gripper) would otherwise offer a link as an object to ground, and a reading off the arm would stand in the
 collision scene as an obstacle. The robot is modelled by its link capsules at the joints of the capture plus
 one capsule around the gripper (`robot_self_capsules`); `robot_pixel_mask` marks the pixels on them, and
-`without_robot` drops their depth readings from a frame.
+`without_robot` drops their depth readings from a frame (`grasp.bins.without_bins` does the same for the
+cell's bins).
 """
 
 from __future__ import annotations

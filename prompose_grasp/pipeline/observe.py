@@ -1,7 +1,8 @@
 """Observe: capture frames the loop can trust and estimate the prompt on them.
 
 Every captured frame first loses the depth readings that lie on the robot itself (its capsules at the joints
-of the capture, `PickConfig.self_filter_margin_m`), so a link in view is never offered as an object. A frame
+of the capture, `PickConfig.self_filter_margin_m`) and on the cell's bins (their floors and walls,
+`grasp.bins.without_bins`), so neither a link in view nor the tote is offered as an object. A frame
 whose image size or intrinsics differ from its camera's first frame of the run is captured again (the
 hand-eye calibration and the depth registration hold for one mode).
 """
@@ -18,6 +19,7 @@ import numpy as np
 from prompose_grasp.errors import AmbiguousObjectError, CameraError, InvalidInputError, ObjectNotFoundError
 from prompose_grasp.geometry.se3 import transform_points
 from prompose_grasp.grasp import ObjectModel, Plane
+from prompose_grasp.grasp.bins import without_bins
 from prompose_grasp.grasp.self_filter import without_robot as robot_free_frame
 from prompose_grasp.pipeline.describe import describe_contenders
 from prompose_grasp.pipeline.loop import Loop
@@ -83,7 +85,7 @@ def capture(loop: Loop, run: RunRecord, camera: RGBDCamera, check: FrameCheck | 
             logger.warning("frame not trusted (%s); capturing again", why)
             continue
         run.last_raw_frame = frame
-        seen = without_robot(loop, frame)
+        seen = without_bins(without_robot(loop, frame), list(loop.place_targets.values()))
         loop.recorder.frame(loop.camera_name(camera), seen)
         return seen
     raise Abort(

@@ -9,6 +9,7 @@ import numpy as np
 
 from prompose_grasp.errors import NoFeasibleGrasp
 from prompose_grasp.grasp import GraspConfig, ObjectModel, Plane, plan_grasps
+from prompose_grasp.grasp.bins import bin_walls
 from prompose_grasp.grasp.extent import carried, height, overlaps, plane_z
 from prompose_grasp.grasp.motion import place_support_fixture
 from prompose_grasp.grasp.place import PlaceTarget
@@ -50,7 +51,9 @@ def plan(loop: Loop, run: RunRecord, obs: Observation, q_now: np.ndarray) -> tup
         try:
             grip = loop.gripper_geometry
             P = obs.points_base
-            scene = build_scene(obs.target, loop.robot, grip, (), obs.support, P, obs.q_seen, cfg)
+            # the bins' readings left the frame at capture (`observe`); their walls stand here as fixtures
+            walls = [w for t in loop.place_targets.values() for w in bin_walls(t)]
+            scene = build_scene(obs.target, loop.robot, grip, walls, obs.support, P, obs.q_seen, cfg)
             grasps = plan_grasps(obs.target, loop.robot, grip, q_seed=q_now, config=cfg, scene=scene)
         except NoFeasibleGrasp as exc:
             reach = sum(v for k, v in exc.rejected.items() if k.startswith("ik"))
@@ -105,6 +108,7 @@ def held_scene(loop: Loop, run: RunRecord, obs: Observation, target: PlaceTarget
         if obs.support is not None and plane_z(obs.support) < plane_z(place_plane):
             support = obs.support
         obstacles = [o for o in run.placed if not overlaps(o, obs.target)]
+        obstacles += [w for t in loop.place_targets.values() for w in bin_walls(t)]
         body = place_support_fixture(target)  # a conveyor's body below its belt: often not in this view
         if body is not None:
             obstacles.append(body)

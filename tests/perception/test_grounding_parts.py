@@ -101,6 +101,22 @@ def test_a_flat_object_near_the_camera_does_not_tilt_the_table():
     assert abs(plane.offset_m - d) < 0.002  # the table's offset, not pulled towards the slab's top
 
 
+def test_a_table_with_the_floor_seen_around_it_is_the_support():
+    """A table filling the middle of the view, 0.75 m above a floor seen behind and beside it (nearly as much
+    of the floor as of the table). Every reading off the table's plane is the floor, below it: counted as a
+    vote against the table, the floor's edge-of-view support outscored the table. Only what lies within
+    0.5 m of a plane says which side the scene is on, and the floor is farther."""
+    n = table_normal(40.0)
+    table = tilted_table(n, 0.8)
+    floor = tilted_table(n, 0.8 + 0.75)
+    v, u = np.mgrid[0 : K.height, 0 : K.width]
+    on_table = (v > 0.25 * K.height) & (np.abs(u - K.cx) < 0.35 * K.width)
+    depth = np.where(on_table, table, floor)
+    P = depth_to_point_map(depth, K)[::4, ::4].reshape(-1, 3)
+    plane = fit_support_plane(P, GroundingConfig())
+    assert plane is not None and abs(plane.offset_m - 0.8) < 0.003  # exact depth: the table's own offset
+
+
 def test_plane_frame_axes_follow_the_image():
     from prompose_grasp.perception.grounding.types import SupportPlane
 

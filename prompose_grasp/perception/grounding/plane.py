@@ -43,6 +43,11 @@ _MAX_PLANES = 3
 #: the inlier band and the noise of a D435 up to ~1.5 m (sigma 9 mm there).
 _SIDE_BAND_M = 0.02
 
+#: ... and within this [m] of it: what stands on a support is rarely taller, and a table is higher above the
+#: floor (desks 0.72-0.76 m, counters 0.9 m), so the floor seen around a table is no vote against it, while
+#: the table 10-40 cm under a box's top face is.
+_NEAR_BAND_M = 0.5
+
 #: Sigma [deg] of the centre weighting of plane support (`_centre_weight`).
 _CENTRE_SIGMA_DEG = 15.0
 
@@ -127,7 +132,8 @@ class PlaneCandidate:
         plane: the plane (normal towards the camera), `inlier_fraction` of all the points.
         central_support: inliers weighted by `_centre_weight` (their direction's angle from the optical axis),
             as a share of all the points: a table under the objects fills the middle of the view.
-        above_share: of the points off the plane by more than `_SIDE_BAND_M`, the share on the camera's side:
+        above_share: of the points off the plane by more than `_SIDE_BAND_M` and less than `_NEAR_BAND_M`,
+            the share on the camera's side:
             objects stand on a support, so most of what is not the plane is above it (a box's top face has
             the scene below it).
         wall: True when another candidate at more than `_WALL_ANGLE_DEG` to it has its normal pointing
@@ -182,7 +188,7 @@ def plane_candidates(points_cam: np.ndarray, config: GroundingConfig) -> list[Pl
         fraction = float(inliers.mean())
         if fraction < _MIN_INLIER_FRACTION:
             break
-        off = np.abs(h) > _SIDE_BAND_M
+        off = (np.abs(h) > _SIDE_BAND_M) & (np.abs(h) < _NEAR_BAND_M)
         above = float((h[off] > 0).mean()) if np.any(off) else 1.0
         plane = SupportPlane(normal_cam=n, offset_m=d, inlier_fraction=fraction)
         found.append(PlaneCandidate(plane, float(w[inliers].sum() / N), above))
