@@ -21,14 +21,11 @@ SCENE = Path(__file__).resolve().parents[2] / "sim" / "scenes" / "tabletop_house
 
 @pytest.mark.sim
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="ends 'ambiguous': the blue paper cup beside the can (11.4 x 7.6 x 6.1 cm seen) fits a soda can "
-    "lying down as well as the can does (the knowledge size term is orientation-free) and reads cylindrical "
-    "where the can, seen near the box/cylinder threshold, reads box-like",
-)
 def test_seeded_tabletop_place_puts_the_can_in_the_bin(tmp_path):
     # Pick and place end to end: grasp, lift, transfer, release; ground truth says where the can ended.
+    # A close call for the grounder: the blue paper cup beside the can (11.4 x 7.6 x 6.1 cm seen) fits a soda
+    # can lying down (the knowledge size term is orientation-free), and the can, seen near the box/cylinder
+    # threshold, reads box-like; the can is chosen at p ~0.78 against the cup's ~0.17 (clear from 0.75).
     from sim.pick import run_episode
 
     events = []
