@@ -145,8 +145,9 @@ def estimates_once(
     scoring under `min_score_ratio` of the best are not fitted; `candidate_ratio` when None).
 
     The best estimate's `contenders` (or `AmbiguousObjectError`, whose estimates are then the answer):
-    0 is "not_found"; 2 or more is "ambiguous" when `judge` (the command names one object and any of
-    them will not do), else the contenders are candidates like any; -1 (not judged) changes nothing."""
+    0 is "not_found" (without `judge` only when the candidates together are not likelier than not,
+    `_any_fits`); 2 or more is "ambiguous" when `judge` (the command names one object and any of them will
+    not do), else the contenders are candidates like any; -1 (not judged) changes nothing."""
     cfg = loop.config
     ratio = cfg.candidate_ratio if min_score_ratio is None else min_score_ratio
     refused: AmbiguousObjectError | None = None
@@ -174,7 +175,7 @@ def estimates_once(
     contenders = int(getattr(ests[0], "contenders", -1)) if ests else -1
     if refused is not None:
         contenders = max(contenders, len(ests), 2)
-    if contenders == 0:
+    if contenders == 0 and (judge or not _any_fits(ests)):
         raise Abort("not_found", f"nothing in the frame fits the words of {prompt!r}", judged=True)
     if judge and contenders >= 2:
         T_base_cam = np.asarray(frame.T_base_cam, dtype=np.float64)
@@ -184,6 +185,16 @@ def estimates_once(
     if not ests:  # refused without an estimate to show
         raise Abort("not_found", str(refused))
     return frame, ests
+
+
+def _any_fits(ests: list[ObjectEstimate]) -> bool:
+    """Whether one of the candidates is likelier than not an object the words name, when any of them will
+    do: the sum of their match probabilities is at least one half (the probabilities of a frame are those
+    of exclusive answers, "this one", "that one", "none", so the sum is the chance that one of them is
+    meant). Like things share the mass: five identical cartons at ~0.2 each leave no single one above a
+    half, though a carton is surely there. False where the estimates carry no probabilities."""
+    p = np.array([float(getattr(e, "probability", np.nan)) for e in ests], dtype=np.float64)
+    return bool(len(p) and np.all(np.isfinite(p)) and p.sum() >= 0.5)
 
 
 def to_base(est: ObjectEstimate, T_base_cam: np.ndarray, name: str) -> tuple[ObjectModel, Plane | None]:

@@ -152,6 +152,22 @@ def test_none_fitting_the_words_is_not_found_and_contenders_not_judged_change_no
     assert outcome.grasp.T_base_tcp[0, 3] == pytest.approx(-0.6, abs=0.025)
 
 
+def test_like_things_that_share_the_probability_are_found_when_any_will_do():
+    # Two boxes at 0.45 and 0.44: neither alone likelier than not the one named (contenders 0), but one of
+    # them is meant with 0.89. A stack of like things takes the top one; a command for one object is refused.
+    stack = PickConfig(**{**BY_SCORE, "candidate_order": "top_first"})
+    outcome, _, _ = _cell(Contenders(0), stack)
+    assert outcome.success, outcome.message
+    outcome, _, _ = _cell(Contenders(0), PickConfig(**BY_SCORE))
+    assert outcome.reason == "not_found"
+    # 0.3 between them: "none" is likelier than any of them, even where any will do
+    weak = Contenders(0)
+    weak.red = _box([-0.6, 0.0, 0.085], (0.05, 0.17, 0.06), "red", 0, 0.2, 0.84)
+    weak.blue = _box([-0.4, 0.0, 0.05], (0.05, 0.10, 0.06), "blue", 0, 0.1, 0.83)
+    outcome, arm, _ = _cell(weak, stack)
+    assert outcome.reason == "not_found" and arm.sent == []
+
+
 # ------------------------------------------------------------------------------------------ wrong object
 #: The world's two boxes (base frame) [m]: A, red, and B, blue, 6 cm cubes-ish on the table; the grounder
 #: ranks A first (its score against B's).
