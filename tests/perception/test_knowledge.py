@@ -138,6 +138,36 @@ def test_size_term_inside_the_range_is_one_and_outside_follows_the_log_normal():
     assert small > term
 
 
+def test_a_kind_that_lies_is_judged_with_its_height_as_its_shortest_extent():
+    w = ScoringWeights()
+    banana = next(e for e in load_table() if e.name == "banana")
+    assert "lies" in banana.features
+    lo, hi = banana.size_lo_m, banana.size_hi_m
+    lying = np.array([0.20, 0.05, 0.035])  # footprint 20 x 5 cm, 3.5 cm high: inside every range
+    standing = np.array([0.05, 0.035, 0.20])  # the same extents, 20 cm high: a bottle's, not a banana's
+    for e in (lying, standing):  # orientation-free for a kind that stands as well as it lies
+        assert knowledge_size_term(e[None, :], lo, hi, w)[0] == pytest.approx(1.0)
+    assert knowledge_size_term(lying[None, :], lo, hi, w, lies=True)[0] == pytest.approx(1.0)
+    # 20 cm high against at most 4 cm (+ 1 cm slack): r = log(0.19 / 0.04) on the height, and the 5 cm
+    # footprint length is under the 15 cm range's bottom: the log-normal of both
+    r_over = np.log((0.20 - w.knowledge_slack_m) / hi[2])
+    r_under = np.log((0.05 + w.knowledge_slack_m) / lo[0])
+    d2 = (r_over / w.knowledge_over_sigma) ** 2 + (r_under / w.knowledge_under_sigma[0]) ** 2
+    term = knowledge_size_term(standing[None, :], lo, hi, w, lies=True)[0]
+    assert term == pytest.approx(2.0 * np.exp(-0.5 * d2) - 1.0)
+    assert term < -0.99
+    # the footprint's two extents are compared largest first whichever way they come
+    assert knowledge_size_term(lying[None, [1, 0, 2]], lo, hi, w, lies=True)[0] == pytest.approx(1.0)
+
+
+def test_a_match_lies_only_when_every_entry_it_joins_does(knowledge):
+    assert knowledge.lookup("banana").lies and knowledge.lookup("screwdriver").lies
+    assert not knowledge.lookup("flashlight").lies  # it stands on its end as well
+    a = next(e for e in load_table() if e.name == "knife")
+    b = next(e for e in load_table() if e.name == "flashlight")
+    assert _joined("x", (a,), 0.7, 0.5).lies and not _joined("x", (a, b), 0.7, 0.5).lies
+
+
 def _feats(extents, families, shares):
     K = len(extents)
     return CandidateFeatures(
@@ -180,6 +210,22 @@ def test_a_long_thin_kind_standing_up_reads_as_long_and_thin(knowledge):
     w = dataclasses.replace(ScoringWeights(), knowledge_size=0.0, knowledge_colour=0.0)
     terms = knowledge_terms(parse_prompt("the flashlight"), feats, match, w)
     assert terms[0] == pytest.approx(terms[1]) and terms[0] > terms[2]
+
+
+def test_a_yellow_bottle_standing_is_no_banana_but_one_lying_could_be(knowledge):
+    # The same yellow 19 x 6 x 4 cm object standing on its end and lying on its side: both are as long and as
+    # yellow as a banana, but a banana does not stand; a flashlight does, and is judged the same either way.
+    yellow = np.zeros(len(PALETTE))
+    yellow[PALETTE.index("yellow")] = 1.0
+    feats = _feats([[0.06, 0.04, 0.19], [0.19, 0.06, 0.04]], ["cylinder", "elongated"], [yellow, yellow])
+    banana = knowledge_terms(parse_prompt("the banana"), feats, knowledge.lookup("banana"), ScoringWeights())
+    # the standing one's 19 cm height is 4 cm at most for a banana (+1 cm slack): most of the size term's
+    # swing of 2 x 1.5
+    assert banana[1] - banana[0] > 2.0
+    light = knowledge_terms(
+        parse_prompt("the flashlight"), feats, knowledge.lookup("flashlight"), ScoringWeights()
+    )
+    assert light[0] == pytest.approx(light[1])
 
 
 def test_shape_fit_rows_cover_every_coarse_shape_and_stay_in_range():

@@ -95,7 +95,10 @@ outside its range by the log ratio r (with 1 cm of slack for segmentation and no
 sigma 0.2 above the range (what a view shows only exceeds the object when segmentation took in a
 neighbour), 0.35 / 0.6 / 0.6 below it (occlusion and the half of a round body the camera does not see
 only shrink what is measured). The term is 2 exp(-d2 / 2) - 1 with d2 the sum over the axes: the ranges
-already span the kind's variation, so one extent outside them counts. Colour: the share of the entry's
+already span the kind's variation, so one extent outside them counts. For a kind that rests on its long
+side and does not stand on its end (knowledge feature "lies": a banana, a knife, a pen), the measured height
+is judged against the shortest range and the footprint against the other two: a yellow bottle standing 19
+cm tall is as long as a banana, but no banana stands on its end. Colour: the share of the entry's
 typical colours in the mask, +1 from 50 % (a label rarely covers less) down to -0.3 at none (a kind's
 typical colour is usual, not certain: a blue bowl is still a bowl); only when the prompt names no colour,
 since a colour word is the user's own. Shape: the coarse shape's fit to the measured
@@ -240,11 +243,18 @@ def _long_thin(extents_m: np.ndarray) -> np.ndarray:
 
 
 def knowledge_size_term(
-    extents_m: np.ndarray, lo_m: np.ndarray, hi_m: np.ndarray, w: ScoringWeights
+    extents_m: np.ndarray, lo_m: np.ndarray, hi_m: np.ndarray, w: ScoringWeights, lies: bool = False
 ) -> np.ndarray:
-    """(K,) in [-1, 1]: how well (K, 3) measured extents [m] fall in an object's typical (3,) size range
-    [lo, hi] (both largest first), orientation-free (module docstring, "Object knowledge")."""
-    e = np.sort(np.maximum(np.asarray(extents_m, dtype=np.float64), 1e-3), axis=1)[:, ::-1]
+    """(K,) in [-1, 1]: how well (K, 3) measured extents [m] (footprint length, width, height) fall in an
+    object's typical (3,) size range [lo, hi] (both largest first): orientation-free, or, for a kind that
+    `lies` on its long side, with the height against the shortest range (module docstring, "Object
+    knowledge")."""
+    e = np.maximum(np.asarray(extents_m, dtype=np.float64), 1e-3)
+    if lies:
+        # footprint largest first, then the height: a 19 cm bottle standing is no banana lying
+        e = np.column_stack([np.sort(e[:, :2], axis=1)[:, ::-1], e[:, 2]])
+    else:
+        e = np.sort(e, axis=1)[:, ::-1]
     over = np.log(np.maximum(e - w.knowledge_slack_m, 1e-3) / hi_m)
     under = np.log((e + w.knowledge_slack_m) / lo_m)
     r_over, r_under = np.maximum(over, 0.0), np.minimum(under, 0.0)
@@ -262,7 +272,8 @@ def knowledge_terms(
     size range, typical colours (when the prompt names none) and coarse shape, times the match's weight."""
     total = np.zeros(len(feats.description_sim))
     if parsed.size is None:
-        total += w.knowledge_size * knowledge_size_term(feats.extents_m, match.size_lo_m, match.size_hi_m, w)
+        lo, hi = match.size_lo_m, match.size_hi_m
+        total += w.knowledge_size * knowledge_size_term(feats.extents_m, lo, hi, w, match.lies)
     if match.colours and not parsed.colours:
         cols = [feats.palette.index(c) for c in match.colours]
         share = feats.colour_shares[:, cols].sum(axis=1)

@@ -43,7 +43,9 @@ log = logging.getLogger(__name__)
 TABLE_PATH = Path(__file__).resolve().parent / "objects.json"
 
 COARSE_SHAPES = ("box", "cylinder", "round", "flat", "elongated", "irregular")
-FEATURES = ("handle", "hollow", "lid", "cap", "spout", "neck")
+#: "lies": it rests on its long side and never stands on its end by itself (a banana, a knife, a pen): its
+#: shortest extent is its height above a support.
+FEATURES = ("handle", "hollow", "lid", "cap", "spout", "neck", "lies")
 CATEGORIES = (
     "household", "grocery", "kitchen", "bathroom", "office", "tool", "toy", "food", "electronics", "clothing",
     "sports", "warehouse",
@@ -104,6 +106,7 @@ class KnowledgeMatch:
         size_lo_m, size_hi_m: (3,) [m] the joined size range of the entries, largest first.
         colours: the entries' colours joined; () when any entry comes in any colour.
         shapes: the entries' coarse shapes.
+        lies: every entry rests on its long side (feature "lies"): its shortest range is a height.
     """
 
     noun: str
@@ -114,6 +117,7 @@ class KnowledgeMatch:
     size_hi_m: np.ndarray
     colours: tuple[str, ...]
     shapes: tuple[str, ...]
+    lies: bool = False
 
     @property
     def entry(self) -> ObjectEntry:
@@ -297,4 +301,5 @@ def _joined(noun: str, entries: tuple[ObjectEntry, ...], similarity: float, weig
     if all(e.colours for e in entries):
         colours = tuple(dict.fromkeys(c for e in entries for c in e.colours))
     shapes = tuple(dict.fromkeys(e.shape for e in entries))
-    return KnowledgeMatch(noun, entries, similarity, float(weight), lo, hi, colours, shapes)
+    lies = all("lies" in e.features for e in entries)
+    return KnowledgeMatch(noun, entries, similarity, float(weight), lo, hi, colours, shapes, lies)
