@@ -61,7 +61,8 @@ def _target_name(
     """Evaluation only: the object the command meant: the longest scene prompt the object phrase contains;
     else, among the objects whose prompt's noun it names ("the brown carton" -> every carton), the one that
     moved most since the start (the one the loop acted on) when any moved more than 2 cm; else the object
-    nearest the first estimate."""
+    nearest the first estimate; with no estimate (the loop found nothing) and nothing moved, the first of
+    those the noun names: any of them was the command's, and none was touched."""
     head = object_phrase(command_text)
     named = _named_in(world, head)
     if named:
@@ -73,6 +74,8 @@ def _target_name(
     }
     if moved and max(moved.values()) > 0.02:
         return max(moved, key=lambda n: moved[n])
+    if first_estimate_world is None and same:
+        return same[0].name
     if first_estimate_world is None:
         raise InvalidInputError(
             f"no scene object's prompt appears in {command_text!r} and nothing was estimated"

@@ -88,3 +88,26 @@ def test_a_unit_that_fails_after_its_retries_is_a_crash_row(monkeypatch, tmp_pat
     assert rows[1]["command"] == bp._episode_plan("tabletop_household", 1, False, False).command
     assert report["successes"] == 2 and report["episodes"] == 3
     assert len(bp.sweep_file(out).read_text().splitlines()) == 3  # each unit's end, the failure included
+
+
+def test_the_judged_target_of_a_run_that_found_nothing_among_like_things():
+    # "the brown carton" names no scene prompt whole ("cardboard carton"); with nothing estimated and
+    # nothing moved, any carton was the command's: the judge names one instead of failing the episode, and a
+    # command whose noun names no object at all is still an error.
+    from types import SimpleNamespace
+
+    from prompose_grasp.errors import InvalidInputError
+    from sim.pick import _target_name
+
+    T = {f"carton_{i}": np.eye(4) for i in range(3)} | {"pallet_wrap": np.eye(4)}
+    objects = [SimpleNamespace(name=n, prompt="cardboard carton") for n in T if n.startswith("carton")]
+    world = SimpleNamespace(objects=objects + [SimpleNamespace(name="pallet_wrap", prompt="stretch wrap")])
+    world.T_world_obj = lambda name: T[name]
+    start = {n: np.eye(4) for n in T}
+    assert _target_name(world, "put the brown carton on the conveyor", None, start) == "carton_0"
+    # the one that moved is the one the loop acted on
+    T["carton_2"] = np.eye(4)
+    T["carton_2"][:3, 3] = (0.0, 0.0, 0.3)
+    assert _target_name(world, "put the brown carton on the conveyor", None, start) == "carton_2"
+    with pytest.raises(InvalidInputError, match="nothing was estimated"):
+        _target_name(world, "put the blue sack on the conveyor", None, start)
