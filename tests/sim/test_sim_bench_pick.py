@@ -101,7 +101,7 @@ def test_the_judged_target_of_a_run_that_found_nothing_among_like_things():
 
     T = {f"carton_{i}": np.eye(4) for i in range(3)} | {"pallet_wrap": np.eye(4)}
     objects = [SimpleNamespace(name=n, prompt="cardboard carton") for n in T if n.startswith("carton")]
-    world = SimpleNamespace(objects=objects + [SimpleNamespace(name="pallet_wrap", prompt="stretch wrap")])
+    world = SimpleNamespace(objects=[*objects, SimpleNamespace(name="pallet_wrap", prompt="stretch wrap")])
     world.T_world_obj = lambda name: T[name]
     start = {n: np.eye(4) for n in T}
     assert _target_name(world, "put the brown carton on the conveyor", None, start) == "carton_0"
