@@ -33,6 +33,12 @@ def carried_target(loop: Loop, obs: Observation) -> ObjectModel:
     return carried(obs.target, obs.support, loop.config.max_object_height_m)
 
 
+def _bin_walls(loop: Loop) -> list[ObjectModel]:
+    """The walls of the cell's bins as fixture boxes: their readings left the frame at capture (`observe`),
+    so the collision scene holds them from the cell's layout."""
+    return [w for t in loop.place_targets.values() for w in bin_walls(t)]
+
+
 def grasp_config(loop: Loop, obs: Observation) -> GraspConfig:
     """The planner's settings for this target: the lift clears the object's own height, and the opening
     includes `open_margin_m` (half on each side), so the approach is checked at the commanded width."""
@@ -51,8 +57,7 @@ def plan(loop: Loop, run: RunRecord, obs: Observation, q_now: np.ndarray) -> tup
         try:
             grip = loop.gripper_geometry
             P = obs.points_base
-            # the bins' readings left the frame at capture (`observe`); their walls stand here as fixtures
-            walls = [w for t in loop.place_targets.values() for w in bin_walls(t)]
+            walls = _bin_walls(loop)
             scene = build_scene(obs.target, loop.robot, grip, walls, obs.support, P, obs.q_seen, cfg)
             grasps = plan_grasps(obs.target, loop.robot, grip, q_seed=q_now, config=cfg, scene=scene)
         except NoFeasibleGrasp as exc:
@@ -108,7 +113,7 @@ def held_scene(loop: Loop, run: RunRecord, obs: Observation, target: PlaceTarget
         if obs.support is not None and plane_z(obs.support) < plane_z(place_plane):
             support = obs.support
         obstacles = [o for o in run.placed if not overlaps(o, obs.target)]
-        obstacles += [w for t in loop.place_targets.values() for w in bin_walls(t)]
+        obstacles += _bin_walls(loop)
         body = place_support_fixture(target)  # a conveyor's body below its belt: often not in this view
         if body is not None:
             obstacles.append(body)

@@ -106,7 +106,6 @@ class KnowledgeMatch:
         size_lo_m, size_hi_m: (3,) [m] the joined size range of the entries, largest first.
         colours: the entries' colours joined; () when any entry comes in any colour.
         shapes: the entries' coarse shapes.
-        lies: every entry rests on its long side (feature "lies"): its shortest range is a height.
     """
 
     noun: str
@@ -117,12 +116,16 @@ class KnowledgeMatch:
     size_hi_m: np.ndarray
     colours: tuple[str, ...]
     shapes: tuple[str, ...]
-    lies: bool = False
 
     @property
     def entry(self) -> ObjectEntry:
         """The nearest entry."""
         return self.entries[0]
+
+    @property
+    def lies(self) -> bool:
+        """Every entry rests on its long side (feature "lies"): the shortest range is a height."""
+        return all("lies" in e.features for e in self.entries)
 
 
 def _entry(raw: Any, index: int) -> ObjectEntry:
@@ -301,5 +304,4 @@ def _joined(noun: str, entries: tuple[ObjectEntry, ...], similarity: float, weig
     if all(e.colours for e in entries):
         colours = tuple(dict.fromkeys(c for e in entries for c in e.colours))
     shapes = tuple(dict.fromkeys(e.shape for e in entries))
-    lies = all("lies" in e.features for e in entries)
-    return KnowledgeMatch(noun, entries, similarity, float(weight), lo, hi, colours, shapes, lies)
+    return KnowledgeMatch(noun, entries, similarity, float(weight), lo, hi, colours, shapes)
