@@ -573,6 +573,23 @@ def test_a_screen_joins_its_base_across_the_strip_it_hides():
         assert (out.max() == 0) == joined, (gap, ab)
 
 
+def test_a_panel_across_the_slab_is_no_hinge():
+    """A hinge is a line the screen and the base share, so a screen's footprint runs along the base's edge.
+    A box standing beside a banana lying at an angle has the sizes of a panel and a slab, about as long
+    and within reach, but across it (a real frame: 52 deg apart, and joined into one "laptop" before)."""
+    cfg = GroundingConfig()
+    labels, P, lab = _laptop_from_behind(0.10, (-30.0, 30.0))
+    assert _join_hinged(labels, P, lambda q: q, lab, cfg).max() == 0  # along the edge: joined
+    for deg, joined in ((15.0, True), (45.0, False), (90.0, False)):
+        turned = P.copy()
+        c, s_ = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+        xy = turned[:10, :, :2] - turned[:10, :, :2].reshape(-1, 2).mean(axis=0)
+        turned[:10, :, 0] = c * xy[..., 0] - s_ * xy[..., 1] + P[:10, :, 0].mean()
+        turned[:10, :, 1] = s_ * xy[..., 0] + c * xy[..., 1] + P[:10, :, 1].mean()
+        out = _join_hinged(labels, turned, lambda q: q, lab, cfg)
+        assert (out.max() == 0) == joined, deg
+
+
 def test_a_screen_leaning_back_joins_its_base_and_a_box_does_not():
     """A screen opened past 110 deg leans back: 13 cm of footprint, wider than an upright panel's 9 cm
     (dev 29: 11-15 cm screens stayed apart from their bases), but its points lie on one steep plane, so it

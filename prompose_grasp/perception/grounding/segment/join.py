@@ -42,6 +42,11 @@ _HINGE_PANEL_MAX_T_M = 0.025
 #: ... and that plane is steep: its normal's vertical component under this (a lean under 45 deg; a box's
 #: top face, as flat, is horizontal: 1).
 _HINGE_PANEL_MAX_NORMAL_UP = 0.7
+#: A hinge is a line that the panel and the slab share, so the panel's footprint runs along the slab's
+#: edge: their footprints' long axes are parallel within this [deg] (the minimum-area rectangle of a noisy,
+#: partly hidden base turns by a few degrees). A box standing beside a banana lying at an angle is no hinge
+#: (a real frame: 52 deg apart, joined before, as a laptop).
+_HINGE_MAX_ANGLE_DEG = 20.0
 
 
 def _adjacent_pairs(labels: np.ndarray) -> set[tuple[int, int]]:
@@ -160,6 +165,7 @@ class _Footprint(NamedTuple):
     length: float  # [m] the longer side of the minimum-area rectangle of its points on the plane
     width: float  # [m] its shorter side
     height: float  # [m] 98th percentile of the points' heights
+    axis: np.ndarray  # (2,) unit direction of the rectangle's longer side on the plane
     thickness: float  # [m] 5-95 percentile spread along the points' least principal axis (0: one plane)
     normal_up: float  # |vertical component| of that axis: 1 for a horizontal plane, 0 for an upright one
     points: np.ndarray  # up to 400 (right, forward) footprint points (an even thinning)
@@ -175,11 +181,13 @@ def _footprints(labels: np.ndarray, Pg: np.ndarray, plane_coords, lab_g: np.ndar
         pts = Pg[own]
         pts = pts[np.isfinite(pts[:, 2])]
         if len(pts) < 3:
-            out.append(_Footprint(0.0, 0.0, 0.0, 0.0, 0.0, np.zeros((0, 2)), chroma))
+            out.append(_Footprint(0.0, 0.0, 0.0, np.array([1.0, 0.0]), 0.0, 0.0, np.zeros((0, 2)), chroma))
             continue
         c = plane_coords(pts)
         xy = c[:, :2].astype(np.float32)
-        a, b = sorted(cv2.minAreaRect(xy)[1], reverse=True)
+        _, (w, h), angle = cv2.minAreaRect(xy)
+        a, b = max(w, h), min(w, h)
+        t = np.radians(angle) + (0.0 if w >= h else 0.5 * np.pi)  # cv2's angle is that of the side w
         centred = c - c.mean(axis=0)
         least = np.linalg.eigh(centred.T @ centred)[1][:, 0]
         thickness = float(np.subtract(*np.percentile(centred @ least, [95, 5])))
@@ -189,6 +197,7 @@ def _footprints(labels: np.ndarray, Pg: np.ndarray, plane_coords, lab_g: np.ndar
                 float(a),
                 float(b),
                 height,
+                np.array([np.cos(t), np.sin(t)]),
                 thickness,
                 abs(float(least[2])),
                 xy[:: max(1, len(xy) // 400)],
@@ -208,8 +217,9 @@ def _join_hinged(
     `_FOOTPRINT_JOIN_M`; and they often differ in colour (a black screen on a red base). Any colour joins
     when the pair is adjacent in the image (`_ADJACENT_CELLS`), one is flat (height under
     `_HINGE_SLAB_MAX_H_M`), the other a panel (footprint width under `_HINGE_PANEL_MAX_W_M` and height
-    over 2.5 times that), the two footprints are about as long (ratio 0.7-1.4) and come within
-    `_HINGE_GAP_M`, or within the panel's height when the two are of one colour. A panel leaning back is
+    over 2.5 times that), the two footprints are about as long (ratio 0.7-1.4) and parallel
+    (`_HINGE_MAX_ANGLE_DEG`: the panel runs along the slab's edge) and come within `_HINGE_GAP_M`, or
+    within the panel's height when the two are of one colour. A panel leaning back is
     wider, but flat (thinner than `_HINGE_PANEL_MAX_T_M`) and steep (`_HINGE_PANEL_MAX_NORMAL_UP`).
     """
     K = int(labels.max()) + 1
@@ -231,6 +241,8 @@ def _join_hinged(
                 continue
             if not 0.7 <= fb.length / max(fa.length, 1e-6) <= 1.4:
                 continue
+            if abs(float(fa.axis @ fb.axis)) < np.cos(np.radians(_HINGE_MAX_ANGLE_DEG)):
+                continue  # not along the slab's edge: no hinge
             gap = _HINGE_GAP_M
             if _shade_distance(fa.chroma, fb.chroma) < config.colour_edge:
                 gap = max(gap, fb.height)
