@@ -76,4 +76,4 @@ def segment_objects(
         return []
 
     grid = _GridLabels(labels, fragment, flat, background)
-    return _paint_segments(rgb, point_map, Pg, lab_g, grid, plane, config, support_hull, plane_coords)
+    return _paint_segments(rgb, point_map, Pg, lab_g, grid, plane, config, support_hull, plane_coords, f_px)

@@ -62,6 +62,24 @@ class _GridLabels(NamedTuple):
     background: np.ndarray
 
 
+#: Gaps in a rim's mask up to about this many pixels are bridged when asking what it encloses (`_enclosed`):
+#: the sensor drops a 2 px band on each side of a depth jump, and the mask's colour fill closes most of it.
+_ENCLOSE_CLOSING_PX = 9
+
+
+def _enclosed(mask: np.ndarray, base_band_px: int) -> np.ndarray:
+    """(H, W) bool: pixels off `mask` that it surrounds (bridging gaps of up to `_ENCLOSE_CLOSING_PX`), or
+    that lie within `base_band_px` of it (an object's own base under the height cut): the inside of a
+    ring, not the table between a clamp's open jaws, which reaches the image region's edge."""
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (_ENCLOSE_CLOSING_PX, _ENCLOSE_CLOSING_PX))
+    closed = cv2.morphologyEx(mask.view(np.uint8), cv2.MORPH_CLOSE, k)
+    _, comp = cv2.connectedComponents((closed == 0).view(np.uint8), connectivity=4)
+    outer = np.unique(np.concatenate([comp[0], comp[-1], comp[:, 0], comp[:, -1]]))
+    band = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * base_band_px + 1, 2 * base_band_px + 1))
+    near = cv2.dilate(mask.view(np.uint8), band) > 0
+    return near & ~mask | (closed == 0) & ~np.isin(comp, outer)
+
+
 def _inner_floor(
     mask: np.ndarray,
     points: np.ndarray,
@@ -69,16 +87,19 @@ def _inner_floor(
     ref_lab: np.ndarray,
     plane: SupportPlane,
     config: GroundingConfig,
+    f_px: float,
 ) -> np.ndarray:
     """Pixels of an object's inner floor that the height cut removed (see `_INNER_FLOOR_SIGMAS`).
 
     Within the mask's convex outline in the image, pixels with depth that lie on or just above the plane
-    (below the height cut) and have the segment's colour (within one `colour_edge`) belong to it when they
-    also lie inside the object's footprint on the plane (the convex hull of its points above the cut, seen
-    from above): the inside bottom of a bowl or a mug stands only millimetres above the table, within the
-    wall. The image outline alone also takes in the table beside a laptop's base or a camera's lens, just as
-    low and, for a dark object on a dark table, of its colour too (dev split seed 22: laptop masks up to
-    20 % table, boxes 1.3-1.6x too wide); that table lies outside the object's footprint.
+    (below the height cut), that the mask encloses or that lie within its base band (`_enclosed`: a bowl's
+    floor lies inside its rim, the table between a clamp's open jaws does not) and have the segment's colour
+    (within one `colour_edge`) belong to it when they also lie inside the object's footprint on the plane
+    (the convex hull of its points above the cut, seen from above): the inside bottom of a bowl or a mug
+    stands only millimetres above the table, within the wall. The image outline alone also takes in the
+    table beside a laptop's base or a camera's lens, just as low and, for a dark object on a dark table, of
+    its colour too (dev split seed 22: laptop masks up to 20 % table, boxes 1.3-1.6x too wide); that table
+    lies outside the object's footprint. `f_px`: the focal length [px] (the base band's width).
     """
     contours, _ = cv2.findContours(mask.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     hull = cv2.convexHull(np.concatenate(contours))  # the outline's points suffice (10x fewer than pixels)
@@ -89,7 +110,10 @@ def _inner_floor(
         h = points @ plane.normal_cam + plane.offset_m
         low = np.isfinite(z) & (h > -_INNER_FLOOR_SIGMAS * config.sigma_m(z))
     same = _colour_distance(lab, ref_lab) < config.colour_edge
-    floor = inside.view(bool) & low & same & ~mask
+    # the object's own base under the height cut spans the cut's height in the image: f cut / z pixels
+    z_obj = float(np.nanmedian(z[mask])) if np.isfinite(z[mask]).any() else 1.0
+    cut = max(config.min_height_m, config.height_sigmas * float(config.sigma_m(z_obj)))
+    floor = inside.view(bool) & low & same & ~mask & _enclosed(mask, int(np.ceil(f_px * cut / z_obj)))
     if not floor.any():
         return floor
     # the footprint: the body's points seen from above, in the plane's (right, forward) coordinates
@@ -116,6 +140,7 @@ def _paint_segments(
     config: GroundingConfig,
     support_hull: np.ndarray | None,
     plane_coords: Callable[[np.ndarray], np.ndarray] | None,
+    f_px: float,
 ) -> list[Segment]:
     """The `Segment` of each grid segment (`segment_objects`' arguments; `Pg` (h, w, 3) the grid's points,
     `lab_g` (h, w, 3) its Lab colours), in label order. Masks never overlap: a pixel goes to the first
@@ -171,7 +196,7 @@ def _paint_segments(
         grown_inv = cv2.dilate(mask.view(np.uint8), kernel).view(bool)
         mask |= (closed | grown_inv) & invalid & near & ~others
         if plane is not None and mask.any():
-            mask |= _inner_floor(mask, roi_points, lab_roi, ref, plane, config) & ~others
+            mask |= _inner_floor(mask, roi_points, lab_roi, ref, plane, config, f_px) & ~others
         mask &= ~taken[y0:y1, x0:x1]
         if mask.sum() < config.min_segment_px:
             continue
