@@ -77,7 +77,8 @@ def _enclosed(mask: np.ndarray, base_band_px: int) -> np.ndarray:
     outer = np.unique(np.concatenate([comp[0], comp[-1], comp[:, 0], comp[:, -1]]))
     band = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * base_band_px + 1, 2 * base_band_px + 1))
     near = cv2.dilate(mask.view(np.uint8), band) > 0
-    return near & ~mask | (closed == 0) & ~np.isin(comp, outer)
+    surrounded = (closed == 0) & ~np.isin(comp, outer)
+    return (near & ~mask) | surrounded
 
 
 def _inner_floor(
@@ -110,8 +111,11 @@ def _inner_floor(
         h = points @ plane.normal_cam + plane.offset_m
         low = np.isfinite(z) & (h > -_INNER_FLOOR_SIGMAS * config.sigma_m(z))
     same = _colour_distance(lab, ref_lab) < config.colour_edge
+    seen = z[mask][np.isfinite(z[mask])]
+    if len(seen) == 0:  # no depth on the object: no footprint to hold a floor
+        return np.zeros_like(mask)
     # the object's own base under the height cut spans the cut's height in the image: f cut / z pixels
-    z_obj = float(np.nanmedian(z[mask])) if np.isfinite(z[mask]).any() else 1.0
+    z_obj = float(np.median(seen))
     cut = max(config.min_height_m, config.height_sigmas * float(config.sigma_m(z_obj)))
     floor = inside.view(bool) & low & same & ~mask & _enclosed(mask, int(np.ceil(f_px * cut / z_obj)))
     if not floor.any():
