@@ -13,7 +13,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from prompose_grasp.perception.grounding.plane import PlaneFrame
-from prompose_grasp.perception.grounding.segment.cells import _above, _colour_distance, lab_image
+from prompose_grasp.perception.grounding.segment.cells import _above, _colour_distance, _height_cut, lab_image
 from prompose_grasp.perception.grounding.types import GroundingConfig, SupportPlane
 
 #: Pixels without depth join a segment when their Lab colour is within this many `colour_edge` of the
@@ -111,13 +111,13 @@ def _inner_floor(
         h = points @ plane.normal_cam + plane.offset_m
         low = np.isfinite(z) & (h > -_INNER_FLOOR_SIGMAS * config.sigma_m(z))
     same = _colour_distance(lab, ref_lab) < config.colour_edge
+    floor = inside.view(bool) & low & same & ~mask
     seen = z[mask][np.isfinite(z[mask])]
-    if len(seen) == 0:  # no depth on the object: no footprint to hold a floor
+    if not floor.any() or len(seen) == 0:  # no depth on the object: no footprint to hold a floor
         return np.zeros_like(mask)
     # the object's own base under the height cut spans the cut's height in the image: f cut / z pixels
     z_obj = float(np.median(seen))
-    cut = max(config.min_height_m, config.height_sigmas * float(config.sigma_m(z_obj)))
-    floor = inside.view(bool) & low & same & ~mask & _enclosed(mask, int(np.ceil(f_px * cut / z_obj)))
+    floor &= _enclosed(mask, int(np.ceil(f_px * float(_height_cut(np.asarray(z_obj), config)) / z_obj)))
     if not floor.any():
         return floor
     # the footprint: the body's points seen from above, in the plane's (right, forward) coordinates
