@@ -29,7 +29,7 @@ from prompose_grasp.geometry import Pose9D
 from prompose_grasp.geometry.pointcloud import outline_corrected_points, valid_depth_mask
 from prompose_grasp.perception.estimate import Estimate, plane_vector
 from prompose_grasp.perception.fit import FitConfig, SceneView, fit_pose
-from prompose_grasp.perception.grounding import Candidate, Grounder, GroundingResult
+from prompose_grasp.perception.grounding import Candidate, Grounder, GroundingResult, SupportPlane
 from prompose_grasp.perception.grounding.language import check_prompt
 from prompose_grasp.perception.grounding.plane import plane_under_object
 from prompose_grasp.perception.priors import PriorLibrary, ShapePrior
@@ -457,7 +457,10 @@ class ProMPose:
             timings_ms["network"] = _ms(t0)
             t0 = time.perf_counter()  # "pose" is the fit alone
         support = grounding.support_plane
-        if support is not None and scene is not None:  # the frame's plane, or a table top right under it
+        on_top = candidate.attributes.support_height_m if candidate.attributes is not None else 0.0
+        if support is not None and on_top > 0.0:  # it stands on another object's top face
+            support = SupportPlane(support.normal_cam, support.offset_m - on_top, support.inlier_fraction)
+        elif support is not None and scene is not None:  # the frame's plane, or a table top right under it
             support = plane_under_object(support, points, scene.depth_m, scene.intrinsics, scene.mask)
         fit = fit_pose(
             points,

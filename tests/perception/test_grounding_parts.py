@@ -1109,3 +1109,56 @@ def test_an_estimate_over_a_floor_rests_on_the_table_top():
     assert est.support_plane.offset_m == pytest.approx(_EYE[2] - 0.72, abs=0.005)
     # 10 %: SIZE_RTOL of the fit tests; exact depth, the prior's own family
     assert est.pose.size[1] == pytest.approx(0.12, rel=0.10)
+
+
+# ------------------------------------------------------------------------------- objects standing on others
+
+#: A 22 x 16 x 6.5 cm carton lying on the table top, and a 6 x 10 x 18 cm carton standing on its top face.
+_LYING = (np.array([-0.11, -0.08, 0.72]), np.array([0.11, 0.08, 0.785]))
+_ON_TOP = (np.array([-0.06, -0.02, 0.785]), np.array([0.0, 0.08, 0.965]))
+#: ... or standing on the table against the lying carton's back, as tall above the table.
+_BESIDE = (np.array([-0.06, 0.08, 0.72]), np.array([0.0, 0.18, 0.9]))
+#: A table top filling most of the view: the frame's plane.
+_WIDE_TABLE_TOP = (np.array([-0.8, -0.6, 0.70]), np.array([0.8, 0.6, 0.72]))
+
+
+def _one_colour_frame(boxes) -> tuple[RGBDFrame, np.ndarray]:
+    """The ray-cast frame of the table top and `boxes`, all boxes one red (colour does not tell them
+    apart), the table grey; and the index of the box seen at each pixel (-1: table, floor)."""
+    depth, label, _ = _raycast([_FLOOR, _WIDE_TABLE_TOP, *boxes])
+    rgb = np.full((K.height, K.width, 3), 120, np.uint8)
+    rgb[label >= 2] = (200, 40, 30)
+    return RGBDFrame(rgb, depth.astype(np.float32), K, 0.0), label - 2
+
+
+def test_a_carton_standing_on_another_is_its_own_candidate_standing_on_its_top():
+    """One colour and touching surfaces join the two cartons in the grid; the lower one's top face, with
+    walls under its edge and free area round the upper one's foot, splits them. The upper carton is
+    measured from the face it stands on (18 cm, not the 24.5 cm from the table) and the pose is fitted
+    standing on that face."""
+    frame, label = _one_colour_frame([_LYING, _ON_TOP])
+    res = Grounder().ground(frame.rgb, frame.depth_m, K, "the box")
+    assert len(res.candidates) == 2
+    upper = [c for c in res.candidates if c.attributes.support_height_m > 0]
+    assert len(upper) == 1
+    a = upper[0].attributes
+    # 1 cm: the face's height is the median of its cells' (exact depth; the bin is 1 cm wide)
+    assert a.support_height_m == pytest.approx(0.065, abs=0.01)
+    assert a.extent_m[2] == pytest.approx(0.18, abs=0.015)  # 98th percentile of the heights above the face
+    # the upper candidate's mask is the upper carton but for the cells within the margin over the face
+    # (max(1 cm, 3 sigma) of its foot) that stay with the lower one
+    assert np.mean(label[upper[0].mask] == 1) > 0.95
+    lower = next(c for c in res.candidates if c is not upper[0])
+    assert lower.attributes.extent_m[2] == pytest.approx(0.065, abs=0.015)
+    est = ProMPose(Grounder(), PriorLibrary()).estimate_all(frame, "the box", max_objects=2)
+    on_top = next(e for e in est if e.attributes.support_height_m > 0)
+    assert on_top.support_plane.offset_m == pytest.approx(_EYE[2] - 0.785, abs=0.01)
+    assert max(on_top.pose.size) == pytest.approx(0.18, rel=0.10)  # 10 %: SIZE_RTOL of the fit tests
+
+
+def test_a_carton_beside_a_lower_one_is_not_split_at_its_top_height():
+    """The same tall carton standing on the table behind the lying one: as high, and one segment with it
+    where they touch, but not over its top face; nothing is split at the face's height."""
+    frame, label = _one_colour_frame([_LYING, _BESIDE])
+    res = Grounder().ground(frame.rgb, frame.depth_m, K, "the box")
+    assert all(c.attributes.support_height_m == 0.0 for c in res.candidates)

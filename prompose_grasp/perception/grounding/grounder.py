@@ -265,6 +265,7 @@ class Grounder:
         pts = seg.points_cam
         if frame is not None:
             coords = frame.coords(pts)
+            coords[:, 2] -= seg.base_height_m  # heights above what it stands on
             rect = cv2.minAreaRect(coords[:, :2].astype(np.float32))
             a, b = sorted(rect[1], reverse=True)
             height = float(np.percentile(coords[:, 2], 98)) if len(coords) else 0.0
@@ -290,6 +291,7 @@ class Grounder:
             s = self.config.segment_stride_px
             grid = points_map[::s, ::s][seg.mask[::s, ::s]]
             grid_coords = frame.coords(grid[np.isfinite(grid[:, 2])])
+            grid_coords[:, 2] -= seg.base_height_m
             handle = handle_seen(grid_coords, extent, family)
             body_taper = taper(grid_coords, extent, family)
         attrs = CandidateAttributes(
@@ -305,6 +307,7 @@ class Grounder:
             handle_seen=handle,
             taper=body_taper,
             shape_family_alternative=alternative,
+            support_height_m=seg.base_height_m,
         )
         return attrs, shares, xy
 

@@ -155,7 +155,8 @@ class CandidateAttributes:
         shape_family: "box" | "cylinder" | "sphere" | "flat" | "elongated" | "irregular".
         centroid_cam: (3,) float64 mean of the candidate's points in the camera frame [m].
         extent_m: (3,) float64 visible extents [m] in the support-plane frame: footprint length, footprint
-            width (length >= width) and height above the plane (height only: full extents when no plane).
+            width (length >= width) and height above what it stands on (`support_height_m`; full extents
+            when no plane).
         num_pixels: pixels in the full-resolution mask.
         description: the generated phrase scored against the prompt ("a small yellow cylinder-shaped object").
         top_height_histogram: (HEIGHT_BINS,) float64 shares summing to 1 (empty when not measured): the
@@ -166,6 +167,8 @@ class CandidateAttributes:
             (a paper cup), NaN when not measured.
         shape_family_alternative: "box" or "cylinder" when the box/cylinder test came out near its
             threshold (`describe.shape_families`): the shape score then weighs both; else None.
+        support_height_m: height [m] above the support plane of the surface the candidate stands on: 0 on
+            the plane, the top face of the object under it for one standing on another.
     """
 
     colour_name: str
@@ -180,6 +183,7 @@ class CandidateAttributes:
     handle_seen: bool = False
     taper: float = float("nan")
     shape_family_alternative: str | None = None
+    support_height_m: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "colour_rgb", _frozen(np.asarray(self.colour_rgb, dtype=np.uint8)))

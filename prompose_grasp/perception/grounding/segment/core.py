@@ -11,6 +11,7 @@ from prompose_grasp.perception.grounding.segment.cells import _foreground, lab_i
 from prompose_grasp.perception.grounding.segment.cluster import _grid_labels, _merge_small
 from prompose_grasp.perception.grounding.segment.join import _join_hinged, _join_surfaces
 from prompose_grasp.perception.grounding.segment.masks import Segment, _GridLabels, _paint_segments
+from prompose_grasp.perception.grounding.segment.stacks import _split_stacked
 from prompose_grasp.perception.grounding.segment.walls import _split_and_drop_walls
 from prompose_grasp.perception.grounding.types import GroundingConfig, SupportPlane
 
@@ -70,10 +71,13 @@ def segment_objects(
     else:
         background = np.zeros(labels.shape, dtype=bool)
     labels = _join_surfaces(labels, Pg, lab_g, plane_coords if plane is not None else None, config)
+    base = np.zeros(int(labels.max()) + 1)  # what each segment stands on [m above the plane]
     if plane_coords is not None:
         labels = _join_hinged(labels, Pg, plane_coords, lab_g, config)
+        if plane is not None:
+            labels, base = _split_stacked(labels, Pg, plane, plane_coords, config, min_cells)
     if int(labels.max()) + 1 == 0:
         return []
 
-    grid = _GridLabels(labels, fragment, flat, background)
+    grid = _GridLabels(labels, fragment, flat, background, base)
     return _paint_segments(rgb, point_map, Pg, lab_g, grid, plane, config, support_hull, plane_coords, f_px)

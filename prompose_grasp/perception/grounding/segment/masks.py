@@ -44,22 +44,27 @@ class Segment:
         points_cam: (N, 3) float64 camera-frame points [m] of the grid cells the segment was clustered
             from, with depth (not of the fragments it gathered, `_attach_fragments`, which are in `mask`).
         box_xyxy: (4,) int64 (x0, y0, x1, y1), inclusive.
+        base_height_m: height [m] above the support plane of the surface it stands on: 0 on the plane, the
+            top face of the object under it for one standing on another (`stacks._split_stacked`).
     """
 
     mask: np.ndarray
     points_cam: np.ndarray
     box_xyxy: np.ndarray
+    base_height_m: float = 0.0
 
 
 class _GridLabels(NamedTuple):
     """The grid's segments, (h, w) each: `labels` 0..K-1 (-1: none), cells of fragments a segment gathered
     (`fragment`: in its mask, not in its points), cells of objects lying flat (`flat`: their pixels count
-    though under the height cut), and background cells no mask may grow into (`background`)."""
+    though under the height cut), background cells no mask may grow into (`background`), and per label
+    the height above the support of the surface it stands on (`base_m`, (K,))."""
 
     labels: np.ndarray
     fragment: np.ndarray
     flat: np.ndarray
     background: np.ndarray
+    base_m: np.ndarray
 
 
 #: Gaps in a rim's mask up to about this many pixels are bridged when asking what it encloses (`_enclosed`):
@@ -151,7 +156,7 @@ def _paint_segments(
     segment that takes it. Left out: without a plane a segment bigger than `_MAX_BACKGROUND_SHARE` of the
     valid cells; one whose footprint centre lies off `support_hull` by more than 5 cm; a mask smaller than
     `min_segment_px`."""
-    labels, fragment, flat, background = grid
+    labels, fragment, flat, background, base_m = grid
     H, W = point_map.shape[:2]
     h, w = Pg.shape[:2]
     s = config.segment_stride_px
@@ -209,5 +214,5 @@ def _paint_segments(
         taken[y0:y1, x0:x1] |= mask
         my, mx = np.nonzero(mask)
         box = np.array([x0 + mx.min(), y0 + my.min(), x0 + mx.max(), y0 + my.max()], dtype=np.int64)
-        segments.append(Segment(mask=full, points_cam=pts, box_xyxy=box))
+        segments.append(Segment(mask=full, points_cam=pts, box_xyxy=box, base_height_m=float(base_m[k])))
     return segments
