@@ -1157,8 +1157,11 @@ def test_a_carton_standing_on_another_is_its_own_candidate_standing_on_its_top()
 
 
 def test_a_carton_beside_a_lower_one_is_not_split_at_its_top_height():
-    """The same tall carton standing on the table behind the lying one: as high, and one segment with it
-    where they touch, but not over its top face; nothing is split at the face's height."""
-    frame, label = _one_colour_frame([_LYING, _BESIDE])
+    """The same tall carton standing on the table behind the lying one: as high, but not over its top face
+    (its front stands on the face's back edge). Nothing is split at the face's height: one colour and
+    touching surfaces leave the two one candidate, measured from the table."""
+    frame, _ = _one_colour_frame([_LYING, _BESIDE])
     res = Grounder().ground(frame.rgb, frame.depth_m, K, "the box")
-    assert all(c.attributes.support_height_m == 0.0 for c in res.candidates)
+    assert len(res.candidates) == 1
+    assert res.candidates[0].attributes.support_height_m == 0.0
+    assert res.candidates[0].attributes.extent_m[2] == pytest.approx(0.18, abs=0.015)

@@ -34,8 +34,8 @@ _INSIDE_FACE_M = 0.01
 
 #: The lower object has walls down to the support under the face's edge: its cells in the lower half of
 #: the face's height (a box's sides) lie within `_WALL_BAND_M` of the face's outline on the plane (the
-#: wall's own thickness in depth noise), at least this share of them; a shelf or a lid held up by a stem, or a wing on a fuselage, has its low cells
-#: under the middle of the face.
+#: wall's own thickness in depth noise), at least this share of them; a shelf or a lid held up by a stem,
+#: or a wing on a fuselage, has its low cells under the middle of the face.
 _WALL_EDGE_SHARE = 0.6
 _WALL_BAND_M = 0.02
 
@@ -67,7 +67,10 @@ def _stands_on_face(face: np.ndarray, upper: np.ndarray, low: np.ndarray, min_ce
         return False
     band = int(np.ceil(_WALL_BAND_M / _AREA_PITCH_M))
     origin = np.min([face.min(axis=0), upper.min(axis=0), low.min(axis=0)], axis=0)
-    fb, ub, lb = (np.floor((p - origin) / _AREA_PITCH_M).astype(np.int64) + band + 1 for p in (face, upper, low))
+    fb, ub, lb = (
+        np.floor((p - origin) / _AREA_PITCH_M).astype(np.int64) + band + 1
+        for p in (face, upper, low)
+    )
     shape = np.max([fb.max(axis=0), ub.max(axis=0), lb.max(axis=0)], axis=0) + band + 2
     free = np.zeros((int(shape[0]), int(shape[1])), dtype=np.uint8)
     free[fb[:, 0], fb[:, 1]] = 1
@@ -86,8 +89,9 @@ def _stands_on_face(face: np.ndarray, upper: np.ndarray, low: np.ndarray, min_ce
 
 
 def _face_height(h: np.ndarray, up: np.ndarray, sigma: float) -> list[float]:
-    """Candidate heights [m] of top faces among a segment's cells (heights `h`, `up`-facing mask): the modes
-    of the up-facing cells' heights at `_FACE_MIN_H_M` or more, in bins of max(1 cm, 2 sigma), lowest first."""
+    """Candidate heights [m] of top faces among a segment's cells (heights `h`, `up`-facing mask), lowest
+    first: the local maxima of the histogram of the up-facing cells' heights at `_FACE_MIN_H_M` or more, in
+    bins of max(1 cm, 2 sigma) (at least 10 cells), each the median height of its bin and the two beside."""
     hu = h[up & (h >= _FACE_MIN_H_M)]
     if len(hu) < 10:
         return []
@@ -113,12 +117,12 @@ def _split_stacked(
     """Grid labels with each object that stands on another's top face split off as its own segment, and
     the (K',) height [m] above `plane` of what each segment stands on (0: the plane; the face for those).
 
-    In a segment, a top face is a level of up-facing cells (`_up_facing`) at `_FACE_MIN_H_M` or more; the
-    cells more than max(1 cm, 3 sigma(z)) above it are an object standing on it when they rise
-    `_UPPER_MIN_RISE_M` above it, mostly over the face (`_UPPER_OVER_SHARE`), the face shows
-    and stand on the face (`_stands_on_face`: the face shows beside them, and has walls under its edge: the
-    lower object is a solid, not a part held up by a stem). Each 4-connected piece of those cells of `min_cells` or more is
-    a new segment; the lowest face that passes is used.
+    In a segment, a top face is a level of up-facing cells (`_up_facing`, `_face_height`); the cells more
+    than max(1 cm, 3 sigma(z)) above it are an object standing on it when they rise `_UPPER_MIN_RISE_M`
+    above it and stand on the face (`_stands_on_face`: mostly over it, with face to spare beside them and
+    walls under its edge: the lower object is a solid, not a part held up by a stem). Each 4-connected piece
+    of those cells of `min_cells` or more is a new segment; the lowest face that passes is used. Without
+    colour between them (an orange drill on a red box, one carton on another) only this tells them apart.
     """
     K = int(labels.max()) + 1
     base = [0.0] * K
