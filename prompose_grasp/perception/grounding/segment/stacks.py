@@ -68,8 +68,7 @@ def _stands_on_face(face: np.ndarray, upper: np.ndarray, low: np.ndarray, min_ce
     band = int(np.ceil(_WALL_BAND_M / _AREA_PITCH_M))
     origin = np.min([face.min(axis=0), upper.min(axis=0), low.min(axis=0)], axis=0)
     fb, ub, lb = (
-        np.floor((p - origin) / _AREA_PITCH_M).astype(np.int64) + band + 1
-        for p in (face, upper, low)
+        np.floor((p - origin) / _AREA_PITCH_M).astype(np.int64) + band + 1 for p in (face, upper, low)
     )
     shape = np.max([fb.max(axis=0), ub.max(axis=0), lb.max(axis=0)], axis=0) + band + 2
     free = np.zeros((int(shape[0]), int(shape[1])), dtype=np.uint8)
