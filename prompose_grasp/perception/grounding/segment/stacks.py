@@ -83,7 +83,7 @@ def _stands_on_face(face: np.ndarray, upper: np.ndarray, low: np.ndarray, min_ce
     if np.mean(inner[ub[:, 0], ub[:, 1]]) < _UPPER_OVER_SHARE:
         return False
     kernel = np.ones((2 * band + 1, 2 * band + 1), np.uint8)
-    edge = cv2.dilate(hull, kernel) & ~cv2.erode(hull, kernel) & 1
+    edge = (cv2.dilate(hull, kernel) > 0) & (cv2.erode(hull, kernel) == 0)  # the outline's band
     return bool(np.mean(edge[lb[:, 0], lb[:, 1]]) >= _WALL_EDGE_SHARE)
 
 
