@@ -97,6 +97,16 @@ SIZE_ONLY_CANS = (
     ("soda", "can", {"radius_m": 0.033, "height_m": 0.122}, (0.55, 0.55, 0.57), (0.0, 0.05), 0.0),
     ("coffee", "can", {"radius_m": 0.0655, "height_m": 0.17}, (0.55, 0.55, 0.57), (0.25, 0.02), 0.0),
 )  # fmt: skip
+#: Three grey boxes standing, of a cereal box's, a cracker box's and a sugar box's sizes (the YCB packs'):
+#: "cereal box" is a name of the box family too, whose typical box is a cracker box's size.
+SIZE_ONLY_BOXES = (
+    ("cereal", "box", {"width_m": 0.2, "height_m": 0.3, "depth_m": 0.07}, (0.55, 0.55, 0.57), (0.25, 0.08),
+     0.2),
+    ("cracker", "box", {"width_m": 0.158, "height_m": 0.21, "depth_m": 0.06}, (0.55, 0.55, 0.57),
+     (-0.02, 0.05), -0.2),
+    ("sugar", "box", {"width_m": 0.089, "height_m": 0.175, "depth_m": 0.038}, (0.55, 0.55, 0.57),
+     (-0.26, 0.02), 0.3),
+)  # fmt: skip
 _BOTTLE = {"radius_m": 0.032, "height_m": 0.19, "neck_ratio": 0.4, "shoulder_ratio": 0.6}
 COLOUR_ONLY_BOTTLES = (
     ("mustard", "bottle", _BOTTLE, (0.9, 0.78, 0.1), (0.22, 0.0), 0.0),

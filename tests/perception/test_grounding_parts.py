@@ -19,10 +19,12 @@ from prompose_grasp.perception.grounding.describe import (
     colour_names,
     dominant_colour,
     handle_seen,
+    outline_hidden,
     shape_families,
     shape_family,
     size_class,
     taper,
+    top_height_cell_fraction,
     top_height_histogram,
 )
 from prompose_grasp.perception.grounding.plane import (
@@ -809,6 +811,59 @@ def test_top_height_histogram_of_constructed_shapes():
     # cells cut a turned outline differently; 0.15 of the mass moving between bins is that grid effect
     assert np.abs(top_height_histogram(turned, 0.22, 0.16) - hb).sum() < 0.15
     np.testing.assert_array_equal(top_height_histogram(np.zeros((0, 3)), 0.1, 0.1), np.zeros(HEIGHT_BINS))
+
+
+def test_top_height_cells_hold_several_samples_of_a_sparsely_seen_object():
+    """A 6 x 6 x 9 cm can-sized box seen far away, sampled every 5 mm: its top on that grid, and one point
+    of its front wall per column, at heights up the wall, 7 mm in front of the top's first row (depth noise
+    along oblique rays at 1.4 m). Cells of a tenth of the footprint (6 mm) hold those wall points alone
+    along the front and read them as low tops; cells three samples wide (15 mm) hold top points too, so
+    the histogram is the box's: all top."""
+    step, side, h = 0.005, 0.06, 0.09
+    g = np.arange(0.0, side + 1e-9, step)
+    # (the footprint starts 2 cm off the origin, where no cell edge of either size falls between the rows)
+    top = np.array([(x, y, h) for x in g for y in g + 0.023])
+    wall = np.column_stack([g, np.full(len(g), 0.016), np.linspace(0.0, 0.8 * h, len(g))])
+    pts = np.vstack([top, wall])
+    fine = top_height_histogram(pts, h, side)
+    cell = top_height_cell_fraction(side, step)
+    assert cell == 0.25  # 3 x 5 mm = 15 mm, a quarter of the 6 cm footprint
+    coarse = top_height_histogram(pts, h, side, cell)
+    assert fine[:-1].sum() > 0.05  # the construction: a row of wall-only cells
+    assert coarse[-1] == pytest.approx(1.0)
+    # dense points (a mesh's) keep the finest cells; beyond the coarsest the coarsest stands
+    assert top_height_cell_fraction(side, 0.0) == 0.1 and top_height_cell_fraction(side, 0.05) == 0.5
+
+
+def test_an_outline_is_hidden_where_something_nearer_or_the_image_edge_bounds_it():
+    """The box on the table, exact depth: free space (table, floor) all round: 0. A board in front hides
+    its lower part: the board's top edge is nearer and not the table, a share of the outline. Depth that
+    drops out in a band along the silhouette says nothing either way; an outline with no readings at all
+    cannot be judged (1). Cut by the image's right edge, that side counts."""
+    depth, label, R = _raycast([_FLOOR, _TABLE_TOP, _OBJECT])
+    P = depth_to_point_map(depth, K)
+    table = PlaneFrame(_plane_at(R, 0.72))
+
+    def height_of(p):
+        return table.coords(p)[:, 2]
+
+    box = label == 2
+    assert outline_hidden(box, P, height_of) < 0.02
+    d2, l2, _ = _raycast([_FLOOR, _TABLE_TOP, _OBJECT, _BOARD])
+    assert outline_hidden(l2 == 2, depth_to_point_map(d2, K), height_of) > 0.2
+    # a 2 px band without readings along the silhouette
+    band = (cv2.dilate(box.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0) & ~box
+    P_band = P.copy()
+    P_band[band] = np.nan
+    assert outline_hidden(box, P_band, height_of) < 0.02
+    P_none = P.copy()
+    P_none[~box] = np.nan
+    assert outline_hidden(box, P_none, height_of) == 1.0
+    # the image cut through the box's middle column
+    xs = np.nonzero(box.any(axis=0))[0]
+    cut = int(xs.mean())
+    assert outline_hidden(box[:, :cut], P[:, :cut], height_of) > 0.15
+    assert outline_hidden(np.zeros_like(box), P, height_of) == 1.0
 
 
 def test_top_heights_term_prefers_the_family_signature():

@@ -17,6 +17,7 @@ from prompose_grasp.perception.grounding.score import (
     ScoringWeights,
     knowledge_size_term,
     knowledge_terms,
+    seen_in_full,
 )
 from prompose_grasp.perception.knowledge import COARSE_SHAPES, ObjectKnowledge, load_table
 from prompose_grasp.perception.knowledge.table import _joined
@@ -136,6 +137,35 @@ def test_size_term_inside_the_range_is_one_and_outside_follows_the_log_normal():
     # only shrink what is measured)
     small = knowledge_size_term((lo / 1.2 - w.knowledge_slack_m)[None, :], lo, hi, w)[0]
     assert small > term
+
+
+def test_an_extent_seen_in_full_is_judged_strictly_for_being_too_small():
+    """A cracker box (16 x 6 x 21 cm standing) against the cereal-box range (25-34 cm long): seen whole,
+    its 21 cm height is its own and falls 0.13 in log short of the range's bottom (with the slack): the
+    strict sigma takes half the term for that (0.87 -> 0.39); with its outline hidden it may be part of a
+    taller box and keeps the lenient sigma. Inside the range both are 1. Only a height is ever sure."""
+    w = ScoringWeights()
+    lo, hi = np.array([0.25, 0.17, 0.05]), np.array([0.34, 0.23, 0.08])
+    cracker = np.array([[0.16, 0.06, 0.21]])
+    r = np.log((0.21 + w.knowledge_slack_m) / lo[0])
+    hidden = knowledge_size_term(cracker, lo, hi, w, seen=np.zeros((1, 3)))[0]
+    whole = knowledge_size_term(cracker, lo, hi, w, seen=np.array([[0.0, 0.0, 1.0]]))[0]
+    assert hidden == pytest.approx(knowledge_size_term(cracker, lo, hi, w)[0])  # not judged: as before
+    assert whole == pytest.approx(2.0 * np.exp(-0.5 * (r / w.knowledge_under_sigma_seen) ** 2) - 1.0)
+    assert whole < hidden - 0.4
+    cereal = np.array([[0.21, 0.07, 0.30]])
+    assert knowledge_size_term(cereal, lo, hi, w, seen=np.ones((1, 3)))[0] == pytest.approx(1.0)
+    # the same box lying (21 cm its footprint's length) is not judged strictly: a footprint is never sure
+    lying = np.array([[0.21, 0.16, 0.06]])
+    assert knowledge_size_term(lying, lo, hi, w, seen=np.array([[0.0, 0.0, 1.0]]))[0] == pytest.approx(hidden)
+    # seen whole, sure of the height only (a footprint loses thin parts and a round body's far half)
+    grey = np.zeros(len(PALETTE))
+    feats = dataclasses.replace(
+        _feats([[0.1, 0.05, 0.1]] * 3, ["box", "cylinder", "box"], [grey] * 3),
+        outline_hidden=np.array([0.0, w.knowledge_outline_hidden, 1.0]),
+    )
+    np.testing.assert_allclose(seen_in_full(feats, w), [[0, 0, 1], [0, 0, 0], [0, 0, 0]])
+    assert seen_in_full(_feats([[0.1, 0.05, 0.1]], ["box"], [grey]), w) is None
 
 
 def test_a_kind_that_lies_is_judged_with_its_height_as_its_shortest_extent():
@@ -304,6 +334,29 @@ def test_a_product_the_table_names_more_closely_than_the_library_is_judged_by_it
     assert closer and tuna[0] > tuna[1]
     _, closer = totals("the can")
     assert not closer
+
+
+def test_a_product_named_by_a_family_alias_is_sized_by_its_entry():
+    """ "soda can" and "cereal box" are aliases of the library's can and box families and entries of the
+    table: the family's typical object is every can's or box's. A round family stands on its base, so the
+    soda can's entry (12-12.4 x 6.5-6.7 x 6.5-6.7 cm) becomes a 6.6 cm footprint under 12.2 cm; a box rests
+    on any face, so no typical box is left to judge by (the entry's range alone). The families' own names,
+    and a mug (whose entry's longest extent is across its handle, no footprint of a round body), keep the
+    family's extents."""
+    from prompose_grasp.perception.grounding.grounder import Grounder
+
+    g = Grounder()
+    can, box, mug = g.noun_prior("can"), g.noun_prior("box"), g.noun_prior("mug")
+    soda = g.noun_prior("soda can")
+    assert soda is not None and soda.family == "can"
+    np.testing.assert_allclose(soda.typical_extent_m, [0.066, 0.066, 0.122])
+    assert can is not None and can.typical_extent_m[2] == pytest.approx(0.115)  # the family's own
+    cereal = g.noun_prior("cereal box")
+    assert cereal is not None and cereal.family == "box" and cereal.typical_extent_m is None
+    assert box is not None and box.typical_extent_m is not None
+    coffee_mug = g.noun_prior("coffee mug")
+    assert coffee_mug is not None and mug is not None
+    np.testing.assert_array_equal(coffee_mug.typical_extent_m, mug.typical_extent_m)
 
 
 @pytest.mark.parametrize("animal", ["elephant", "giraffe", "lion"])

@@ -116,6 +116,20 @@ bin), a laptop mostly "low" (its base) with a strip of "top" (the screen's edge)
 footprint at shoulder height and a little at the top (the neck), a camera's body is lower than its
 viewfinder hump, a mug's opening shows its inside lower than the rim. It does not depend on the object's
 yaw or metric size, and occlusion removes cells without changing the heights of the others.
+A cell must hold several samples for its highest one to be the top: a cell that catches a single point of
+a side wall reads that point's height. So the cells are never smaller than `TOP_CELL_SAMPLES` times the
+spacing of the points measured (`top_height_cell_fraction`): a 6 cm can 1.4 m away, sampled every 5 mm,
+gets 1.5 cm cells rather than 6 mm ones, in which its sides' points had spread half its cells over the
+lower bins.
+
+Outline (`outline_hidden`): what a candidate's visible extents can be trusted for. Just outside its mask,
+each read pixel of a ring 6 px wide (wider than the band where depth drops out along silhouettes) either
+shows something farther away (the table behind or beside it, a wall: free space, so the object ends there)
+or could hide more of it: a reading nearer the camera than the candidate by more than 2 cm that is not the
+support plane (another object in front), or the image's edge. The share of such ring pixels among those
+judged is 0 for an object seen whole and rises with occlusion; an outline mostly without readings (a dark
+or shiny object, the robot's pixels removed beside it) is not judged and counts as hidden. The knowledge
+size term judges a candidate seen whole strictly for being too small (`score`).
 """
 
 from __future__ import annotations
@@ -136,10 +150,12 @@ __all__ = [
     "describe_text",
     "dominant_colour",
     "handle_seen",
+    "outline_hidden",
     "shape_families",
     "shape_family",
     "size_class",
     "taper",
+    "top_height_cell_fraction",
     "top_height_histogram",
 ]
 
@@ -149,6 +165,19 @@ HEIGHT_BINS = 6
 #: Footprint cells of the top-height histogram are this fraction of the footprint length: ~10 x 10 cells,
 #: each holding tens of grid points of a 10 cm object seen at 0.8 m (3 mm apart at a 2 px stride).
 _HEIGHT_CELL_FRACTION = 0.1
+#: ... and at least this many sample spacings wide (about nine samples to a cell), up to half the footprint
+#: (`top_height_cell_fraction`).
+TOP_CELL_SAMPLES = 3.0
+_MAX_CELL_FRACTION = 0.5
+
+#: Outline test (`outline_hidden`): the ring of pixels this far outside a mask is looked at; a reading
+#: there nearer than the candidate's nearest reading around it by more than the margin (twice a consumer
+#: camera's depth noise at 1-1.5 m) and higher above the support plane than the minimum is an occluder.
+OUTLINE_RING_PX = 6
+OCCLUDER_MARGIN_M = 0.02
+OCCLUDER_MIN_HEIGHT_M = 0.015
+#: ... and judged only where at least this share of the ring has readings (or lies off the image).
+OUTLINE_MIN_READ = 0.3
 
 PALETTE: tuple[str, ...] = (
     "red",
@@ -463,13 +492,24 @@ def _edge_distances(uv: np.ndarray, lim: np.ndarray) -> np.ndarray:
     return out
 
 
-def top_height_histogram(coords: np.ndarray, height_m: float, length_m: float) -> np.ndarray:
+def top_height_cell_fraction(length_m: float, sample_spacing_m: float) -> float:
+    """Cell size over footprint length for the top-height histogram of an object `length_m` long sampled
+    every `sample_spacing_m` [m] (a camera's: pixel stride x range / focal length): a tenth, or
+    `TOP_CELL_SAMPLES` sample spacings where that is more, at most a half."""
+    need = TOP_CELL_SAMPLES * max(float(sample_spacing_m), 0.0) / max(float(length_m), 1e-6)
+    return float(min(max(_HEIGHT_CELL_FRACTION, need), _MAX_CELL_FRACTION))
+
+
+def top_height_histogram(
+    coords: np.ndarray, height_m: float, length_m: float, cell_fraction: float = _HEIGHT_CELL_FRACTION
+) -> np.ndarray:
     """(HEIGHT_BINS,) float64 shares (sum 1) of footprint cells by their top height (module docstring).
 
     Args:
         coords: (N, 3) float64 points in the support-plane frame (right, forward, height) [m].
         height_m: the object's height [m] (top heights are fractions of it; higher ones go to the last bin).
-        length_m: its footprint length [m] (sets the cell size).
+        length_m: its footprint length [m].
+        cell_fraction: the cells' size as a fraction of `length_m` (`top_height_cell_fraction`).
 
     Returns all zeros for an empty point set.
     """
@@ -478,7 +518,7 @@ def top_height_histogram(coords: np.ndarray, height_m: float, length_m: float) -
     P = P[np.all(np.isfinite(P), axis=1)]
     if len(P) == 0 or not (height_m > 0 and length_m > 0):
         return out
-    ij = np.floor(P[:, :2] / (_HEIGHT_CELL_FRACTION * length_m)).astype(np.int64)
+    ij = np.floor(P[:, :2] / (cell_fraction * length_m)).astype(np.int64)
     ij -= ij.min(axis=0)
     key = ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]
     top = np.full(int(key.max()) + 1, -np.inf)
@@ -487,6 +527,50 @@ def top_height_histogram(coords: np.ndarray, height_m: float, length_m: float) -
     bins = np.clip((top * HEIGHT_BINS).astype(np.int64), 0, HEIGHT_BINS - 1)
     out += np.bincount(bins, minlength=HEIGHT_BINS)
     return out / out.sum()
+
+
+def outline_hidden(mask: np.ndarray, points_map: np.ndarray, height_of=None) -> float:
+    """Share in [0, 1] of a candidate's outline beyond which more of it could be hidden (module docstring).
+
+    Args:
+        mask: (H, W) bool full-resolution mask of the candidate.
+        points_map: (H, W, 3) camera-frame points [m], NaN where there is no depth reading.
+        height_of: maps (N, 3) camera-frame points to their heights above the support plane [m], or None
+            (no plane: every nearer reading counts as an occluder).
+
+    Returns 1 for an empty mask or an outline with too few readings around it to tell.
+    """
+    ys, xs = np.nonzero(mask)
+    if not len(ys):
+        return 1.0
+    r = OUTLINE_RING_PX
+    H, W = mask.shape
+    y0, y1, x0, x1 = int(ys.min()) - r, int(ys.max()) + r + 1, int(xs.min()) - r, int(xs.max()) + r + 1
+    # the crop; beyond the image's edge every pixel could hide more of the object
+    m = np.zeros((y1 - y0, x1 - x0), dtype=np.uint8)
+    P = np.full((y1 - y0, x1 - x0, 3), np.nan)
+    inside = np.zeros(m.shape, dtype=bool)
+    cy0, cy1, cx0, cx1 = max(y0, 0), min(y1, H), max(x0, 0), min(x1, W)
+    m[cy0 - y0 : cy1 - y0, cx0 - x0 : cx1 - x0] = mask[cy0:cy1, cx0:cx1]
+    P[cy0 - y0 : cy1 - y0, cx0 - x0 : cx1 - x0] = points_map[cy0:cy1, cx0:cx1]
+    inside[cy0 - y0 : cy1 - y0, cx0 - x0 : cx1 - x0] = True
+    kernel = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
+    ring = (cv2.dilate(m, kernel) > 0) & (m == 0)
+    z = P[..., 2]
+    z_own = np.where((m > 0) & np.isfinite(z), z, np.inf).astype(np.float32)
+    nearest_own = cv2.erode(z_own, kernel)  # the candidate's nearest reading around each ring pixel
+    off_image = ring & ~inside
+    read = ring & inside & np.isfinite(z) & np.isfinite(nearest_own)
+    # depth drops out along silhouettes (and on dark or shiny surfaces): an unread pixel says nothing
+    judged = int(np.count_nonzero(read | off_image))
+    if judged < OUTLINE_MIN_READ * max(int(np.count_nonzero(ring)), 1):
+        return 1.0
+    nearer = read & (z < nearest_own - OCCLUDER_MARGIN_M)
+    if height_of is not None and nearer.any():
+        # the support plane in front of an object's base is nearer and hides nothing of it
+        idx = np.nonzero(nearer)
+        nearer[idx] = height_of(P[idx]) > OCCLUDER_MIN_HEIGHT_M
+    return float(np.count_nonzero(nearer | off_image)) / judged
 
 
 def describe_text(size: str, colour: str, family: str) -> str:

@@ -22,16 +22,19 @@ from prompose_grasp.perception.grounding.describe import (
     describe_text,
     dominant_colour,
     handle_seen,
+    outline_hidden,
     shape_families,
     shape_family,
     size_class,
     taper,
+    top_height_cell_fraction,
     top_height_histogram,
 )
 from prompose_grasp.perception.grounding.language import ParsedPrompt, check_prompt, parse_prompt
 from prompose_grasp.perception.grounding.plane import PlaneFrame, fit_support_plane
 from prompose_grasp.perception.grounding.score import (
     FAMILY_TEXTS,
+    SAME_MATCH,
     CandidateFeatures,
     NounPrior,
     RivalReadings,
@@ -237,9 +240,35 @@ class Grounder:
                     # judged as a candidate would be: only a family whose mesh reads round has a taper
                     taper=taper(coords, extent, shape_family(coords, extent)),
                 )
+                out = self._sized_as_product(noun, out, prior.symmetry)
         with self._priors_lock:
             self._noun_priors[noun] = out
         return out
+
+    def _sized_as_product(self, noun: str, prior: NounPrior, symmetry: str) -> NounPrior:
+        """`prior` for a product the table and the library both name exactly that is not the family's own
+        name ("cereal box", "soda can"): the family's typical size is every box's or can's, the table's
+        entry that product's (score module docstring, "Object knowledge"). A family that rests on any face
+        (box symmetry) has no typical size left: the entry's range stands alone. A round family stands on
+        its base: the entry's two most alike extents are its footprint, the third its height. Any other
+        family keeps its own (a handle or a lens makes the entry's extents no footprint)."""
+        match = self.knowledge.lookup(noun)
+        if (
+            match is None
+            or match.weight < 1.0
+            or match.noun == prior.family
+            or abs(match.similarity - prior.match_score) > SAME_MATCH
+        ):
+            return prior
+        if symmetry == "box":
+            return dataclasses.replace(prior, typical_extent_m=None)
+        if symmetry != "y_continuous":
+            return prior
+        mid = 0.5 * (match.size_lo_m + match.size_hi_m)  # largest first
+        # the pair with the smallest ratio: (0, 1) or (1, 2)
+        pair = (0, 1) if mid[0] / mid[1] < mid[1] / mid[2] else (1, 2)
+        height = mid[({0, 1, 2} - set(pair)).pop()]
+        return dataclasses.replace(prior, typical_extent_m=np.array([mid[pair[0]], mid[pair[1]], height]))
 
     def _embed(self, texts: list[str]) -> np.ndarray:
         """(N, D) unit embeddings, cached per text (descriptions come from a small vocabulary)."""
@@ -260,9 +289,11 @@ class Grounder:
         return dict(zip(FAMILY_TEXTS, (z / z.sum()).tolist()))
 
     def _attributes(
-        self, rgb: np.ndarray, points_map: np.ndarray, seg: Segment, frame: PlaneFrame | None
+        self, rgb: np.ndarray, points_map: np.ndarray, seg: Segment, frame: PlaneFrame | None, focal_px: float
     ) -> tuple[CandidateAttributes, dict[str, float], np.ndarray]:
         pts = seg.points_cam
+        # the segment's points lie on the clustering grid: this far apart at its median range
+        spacing = self.config.segment_stride_px * float(np.median(pts[:, 2])) / focal_px if len(pts) else 0.0
         if frame is not None:
             coords = frame.coords(pts)
             coords[:, 2] -= seg.base_height_m  # heights above what it stands on
@@ -283,7 +314,8 @@ class Grounder:
         colour, colour_rgb, shares = dominant_colour(rgb[ys[::step], xs[::step]])
         size = size_class(extent)
         family, alternative = shape_families(coords, extent)
-        tops = top_height_histogram(coords, float(extent[2]), float(extent[0]))
+        cell = top_height_cell_fraction(float(extent[0]), spacing)
+        tops = top_height_histogram(coords, float(extent[2]), float(extent[0]), cell)
         handle, body_taper = False, float("nan")
         if frame is not None:  # without a plane there is no footprint to find a handle around
             # on the whole mask's grid points: a handle often joins its body's mask only when the mask is
@@ -308,6 +340,10 @@ class Grounder:
             taper=body_taper,
             shape_family_alternative=alternative,
             support_height_m=seg.base_height_m,
+            # without a plane the extents are principal spreads, which no outline bounds one by one
+            outline_hidden=1.0
+            if frame is None
+            else outline_hidden(seg.mask, points_map, lambda p: frame.coords(p)[:, 2]),
         )
         return attrs, shares, xy
 
@@ -363,17 +399,18 @@ class Grounder:
             inl = Ps[np.abs(plane.height_m(Ps)) < cfg.ransac_inlier_m]
             hull = cv2.convexHull(frame.coords(inl)[:, :2].astype(np.float32))
         t1 = time.perf_counter()
+        focal_px = 0.5 * (intrinsics.fx + intrinsics.fy)
         segs = segment_objects(
             rgb,
             P,
-            0.5 * (intrinsics.fx + intrinsics.fy),
+            focal_px,
             plane,
             cfg,
             support_hull=hull,
             plane_coords=frame.coords if frame is not None else None,
         )
         t2 = time.perf_counter()
-        described = [self._attributes(rgb, P, s, frame) for s in segs]
+        described = [self._attributes(rgb, P, s, frame, focal_px) for s in segs]
         t3 = time.perf_counter()
         candidates: tuple[Candidate, ...] = ()
         n_contenders = 0
@@ -417,6 +454,7 @@ class Grounder:
             top_heights=np.stack([d[0].top_height_histogram for d in described]),
             handles=np.array([d[0].handle_seen for d in described], dtype=bool),
             tapers=np.array([d[0].taper for d in described], dtype=np.float64),
+            outline_hidden=np.array([d[0].outline_hidden for d in described], dtype=np.float64),
         )
 
     def _prior_for(self, parsed: ParsedPrompt, has_plane: bool) -> NounPrior | None:
@@ -426,7 +464,8 @@ class Grounder:
         if prior is None or has_plane:
             return prior
         # without a plane the extents are principal spreads, largest first
-        return NounPrior(prior.family, prior.match_score, np.sort(prior.typical_extent_m)[::-1])
+        t = None if prior.typical_extent_m is None else np.sort(prior.typical_extent_m)[::-1]
+        return NounPrior(prior.family, prior.match_score, t)
 
     def _knowledge_for(self, parsed: ParsedPrompt) -> Any:
         """What the knowledge table knows of the prompt's noun, or None (a generic noun, no near entry)."""

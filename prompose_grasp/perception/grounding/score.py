@@ -95,7 +95,13 @@ outside its range by the log ratio r (with 1 cm of slack for segmentation and no
 sigma 0.2 above the range (what a view shows only exceeds the object when segmentation took in a
 neighbour), 0.35 / 0.6 / 0.6 below it (occlusion and the half of a round body the camera does not see
 only shrink what is measured). The term is 2 exp(-d2 / 2) - 1 with d2 the sum over the axes: the ranges
-already span the kind's variation, so one extent outside them counts. For a kind that rests on its long
+already span the kind's variation, so one extent outside them counts. A height seen in full is judged
+strictly for being too small (sigma 0.15 in place of the lenient one): when free space bounds the
+candidate's outline all round (`describe.outline_hidden` under 0.05, the lenient sigma back by 0.25),
+nothing in front hides its top and the plane under it is known, so a 21 cm cracker box is no 25-34 cm
+cereal box and a 9 cm tomato-paste can no 12 cm soda can. Its footprint is never judged so: a round body's
+far half is not seen, and thin parts near the table (wings, blades) fall under the segmentation's height
+cut with nothing in front of them. For a kind that rests on its long
 side and does not stand on its end (knowledge feature "lies": a banana, a knife, a pen), the measured height
 is judged against the shortest range and the footprint against the other two: a yellow bottle standing 19
 cm tall is as long as a banana, but no banana stands on its end. Colour: the share of the entry's
@@ -107,7 +113,13 @@ above the library's, and a weight of at least 0.5: "sugar box" is an entry, the 
 its size range and coarse shape replace the family's typical size and shape: the metric size term, the
 family's shape term and the rival families' term are left out (a tuna can is a short cylinder that reads
 flat, and the can family's shape had preferred a slim marker to it); for a family's own name ("bowl") all
-count. When the library has no family for the noun and the table has an entry (weight at least 0.5:
+count. Where both name the noun exactly and it is not the family's own name ("cereal box" and "soda can"
+are aliases of the box and can families and entries of the table), the entry's range is that product's
+size and the family's typical extents every box's or can's (`Grounder.noun_prior`): a family that rests
+on any face (the box, 15 x 7 x 20 cm standing) has no typical size left and the metric size term is left
+out; a round family stands on its base, so the entry's two most alike extents become its footprint and
+the third its height (a soda can 6.6 x 6.6 cm under 12.2 cm, the can family's 11.5 cm no more). When the
+library has no family for the noun and the table has an entry (weight at least 0.5:
 "stapler", "elephant", "eyeglasses"), the shape term reads the entry's coarse shape in place of the noun's
 similarity to the family sentences: those sentences guess a shape from how the word reads ("elephant" lands
 nearest "a long thin object", "eyeglasses" nearest "a cylindrical object"), which for a word they were not
@@ -129,6 +141,7 @@ from prompose_grasp.perception.grounding.language import ParsedPrompt
 
 __all__ = [
     "FAMILY_TEXTS",
+    "SAME_MATCH",
     "SHAPE_FIT",
     "CandidateFeatures",
     "NounPrior",
@@ -142,6 +155,7 @@ __all__ = [
     "metric_size_term",
     "score_candidates",
     "score_of_total",
+    "seen_in_full",
     "total_of_score",
 ]
 
@@ -173,6 +187,9 @@ class ScoringWeights:
     knowledge_shape: float = 0.5
     knowledge_over_sigma: float = 0.2
     knowledge_under_sigma: tuple[float, float, float] = (0.35, 0.6, 0.6)
+    knowledge_under_sigma_seen: float = 0.15
+    knowledge_outline_free: float = 0.05
+    knowledge_outline_hidden: float = 0.25
     knowledge_slack_m: float = 0.01
     knowledge_colour_full_share: float = 0.5
     knowledge_colour_miss: float = 0.3
@@ -198,7 +215,9 @@ class NounPrior:
         family: the library family the noun matched ("mug").
         match_score: its retrieval score (cosine, >= the library's threshold).
         typical_extent_m: (3,) float64 [m] the family's typical extents in the order the candidates are
-            measured: footprint length >= footprint width, height (sorted descending without a plane).
+            measured: footprint length >= footprint width, height (sorted descending without a plane); a
+            product's, for a product the table names (`Grounder.noun_prior`); None when there is none to
+            judge (a product of a family that rests on any face: the table's range alone).
         top_height_histogram: (HEIGHT_BINS,) shares of the family's mean mesh (`describe`), or None.
         has_handle: the family's mean mesh has a handle (`describe.handle_seen` on its points).
         taper: the family's mean mesh's `describe.taper` (NaN when the mesh does not read round).
@@ -206,7 +225,7 @@ class NounPrior:
 
     family: str
     match_score: float
-    typical_extent_m: np.ndarray
+    typical_extent_m: np.ndarray | None
     top_height_histogram: np.ndarray | None = None
     has_handle: bool = False
     taper: float = float("nan")
@@ -242,23 +261,53 @@ def _long_thin(extents_m: np.ndarray) -> np.ndarray:
     return e[:, 0] >= ELONGATED_RATIO * e[:, 1]
 
 
+def seen_in_full(feats: CandidateFeatures, w: ScoringWeights) -> np.ndarray | None:
+    """(K, 3) in [0, 1]: how surely each candidate's measured footprint length, footprint width and height
+    are its whole extents (module docstring, "Object knowledge"); None when the outlines were not judged.
+
+    Only the height can be sure: with free space all round (`describe.outline_hidden` at most
+    `knowledge_outline_free`, falling to nothing at `knowledge_outline_hidden`) the top is seen and the
+    plane is known. The footprint is not, even then: a round body's far half is behind it, and thin parts
+    near the table (a toy plane's wings, a knife's blade) fall under the segmentation's height cut with
+    nothing in front of them.
+    """
+    if feats.outline_hidden is None:
+        return None
+    h = np.asarray(feats.outline_hidden, dtype=np.float64)
+    free, hidden = w.knowledge_outline_free, w.knowledge_outline_hidden
+    s = np.clip((hidden - h) / (hidden - free), 0.0, 1.0)
+    return np.column_stack([np.zeros_like(s), np.zeros_like(s), s])
+
+
 def knowledge_size_term(
-    extents_m: np.ndarray, lo_m: np.ndarray, hi_m: np.ndarray, w: ScoringWeights, lies: bool = False
+    extents_m: np.ndarray,
+    lo_m: np.ndarray,
+    hi_m: np.ndarray,
+    w: ScoringWeights,
+    lies: bool = False,
+    seen: np.ndarray | None = None,
 ) -> np.ndarray:
     """(K,) in [-1, 1]: how well (K, 3) measured extents [m] (footprint length, width, height) fall in an
     object's typical (3,) size range [lo, hi] (both largest first): orientation-free, or, for a kind that
     `lies` on its long side, with the height against the shortest range (module docstring, "Object
-    knowledge")."""
+    knowledge"). `seen`: (K, 3) in [0, 1], how surely the view shows each measured extent in full
+    (`seen_in_full`); None: none is sure."""
     e = np.maximum(np.asarray(extents_m, dtype=np.float64), 1e-3)
     if lies:
         # footprint largest first, then the height: a 19 cm bottle standing is no banana lying
+        order = np.tile(np.array([0, 1, 2]), (len(e), 1))
         e = np.column_stack([np.sort(e[:, :2], axis=1)[:, ::-1], e[:, 2]])
     else:
-        e = np.sort(e, axis=1)[:, ::-1]
+        order = np.argsort(-e, axis=1, kind="stable")
+        e = np.take_along_axis(e, order, axis=1)
     over = np.log(np.maximum(e - w.knowledge_slack_m, 1e-3) / hi_m)
     under = np.log((e + w.knowledge_slack_m) / lo_m)
     r_over, r_under = np.maximum(over, 0.0), np.minimum(under, 0.0)
-    under_sigma = np.asarray(w.knowledge_under_sigma, dtype=np.float64)
+    under_sigma = np.broadcast_to(np.asarray(w.knowledge_under_sigma, dtype=np.float64), e.shape)
+    if seen is not None:
+        # an extent seen in full is the object's own: too small is judged strictly
+        sure = np.take_along_axis(np.asarray(seen, dtype=np.float64), order, axis=1)
+        under_sigma = under_sigma + (w.knowledge_under_sigma_seen - under_sigma) * sure
     # summed, not averaged, over the axes: the range already spans the kind's variation, so one extent
     # outside it is as telling as three
     d2 = np.sum((r_over / w.knowledge_over_sigma) ** 2 + (r_under / under_sigma) ** 2, axis=1)
@@ -273,7 +322,9 @@ def knowledge_terms(
     total = np.zeros(len(feats.description_sim))
     if parsed.size is None:
         lo, hi = match.size_lo_m, match.size_hi_m
-        total += w.knowledge_size * knowledge_size_term(feats.extents_m, lo, hi, w, match.lies)
+        total += w.knowledge_size * knowledge_size_term(
+            feats.extents_m, lo, hi, w, match.lies, seen_in_full(feats, w)
+        )
     if match.colours and not parsed.colours:
         cols = [feats.palette.index(c) for c in match.colours]
         share = feats.colour_shares[:, cols].sum(axis=1)
@@ -322,6 +373,7 @@ class CandidateFeatures:
         plane_xy_m: (K, 2) (right, forward) footprint centres on the support plane [m] (camera x, z without
             a plane).
         distance_m: (K,) distance of the centroids from the camera [m].
+        outline_hidden: (K,) `describe.outline_hidden` of each candidate (0: seen whole), or None.
     """
 
     description_sim: np.ndarray
@@ -336,6 +388,7 @@ class CandidateFeatures:
     handles: np.ndarray | None = None
     tapers: np.ndarray | None = None
     alternative_families: tuple[str | None, ...] | None = None
+    outline_hidden: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -366,7 +419,7 @@ def _rank_term(values: np.ndarray, direction: int, plausible: np.ndarray) -> np.
 
 #: Two cosines of one text's embeddings closer than this are the same match: a family's own name ("can")
 #: matches its family and its table entry at 1 up to float32 rounding (1 - 5e-8 against 1.0).
-_SAME_MATCH = 1e-6
+SAME_MATCH = 1e-6
 
 
 def knows_more_than_family(knowledge: Any, noun_prior: NounPrior | None, w: ScoringWeights) -> bool:
@@ -376,7 +429,7 @@ def knows_more_than_family(knowledge: Any, noun_prior: NounPrior | None, w: Scor
     for the shape read from the noun's words."""
     if knowledge is None or knowledge.weight < w.knowledge_replaces_family_size:
         return False
-    return noun_prior is None or knowledge.similarity > noun_prior.match_score + _SAME_MATCH
+    return noun_prior is None or knowledge.similarity > noun_prior.match_score + SAME_MATCH
 
 
 def _base_terms(
@@ -416,7 +469,12 @@ def _base_terms(
         total += w.shape * knowledge.weight * coarse_shape_fits(knowledge, feats)
     if knowledge is not None:
         total += knowledge_terms(parsed, feats, knowledge, w)
-    if noun_prior is not None and parsed.size is None and not knows_better:
+    if (
+        noun_prior is not None
+        and noun_prior.typical_extent_m is not None
+        and parsed.size is None
+        and not knows_better
+    ):
         total += w.metric_size * metric_size_term(feats.extents_m, noun_prior.typical_extent_m, w)
     if (
         noun_prior is not None

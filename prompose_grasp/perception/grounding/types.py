@@ -169,6 +169,8 @@ class CandidateAttributes:
             threshold (`describe.shape_families`): the shape score then weighs both; else None.
         support_height_m: height [m] above the support plane of the surface the candidate stands on: 0 on
             the plane, the top face of the object under it for one standing on another.
+        outline_hidden: share of the mask's outline beyond which more of the candidate could be hidden
+            (`describe.outline_hidden`): 0 when free space bounds it all round; 1 when not measured.
     """
 
     colour_name: str
@@ -184,6 +186,7 @@ class CandidateAttributes:
     taper: float = float("nan")
     shape_family_alternative: str | None = None
     support_height_m: float = 0.0
+    outline_hidden: float = 1.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "colour_rgb", _frozen(np.asarray(self.colour_rgb, dtype=np.uint8)))
