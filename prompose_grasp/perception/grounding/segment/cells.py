@@ -181,19 +181,18 @@ def concave_creases(z: np.ndarray, config: GroundingConfig, k: int = 0) -> np.nd
 
 
 def _foreground(
-    Pg: np.ndarray, lab_g: np.ndarray, plane: SupportPlane | None, config: GroundingConfig, min_cells: int
+    Pg: np.ndarray, lab_g: np.ndarray, plane: SupportPlane | None, config: GroundingConfig
 ) -> tuple[np.ndarray, np.ndarray]:
     """The grid cells `Pg` (h, w, 3) of standing objects ((h, w) bool: above the height cut, and the thin
-    parts under it), and the (h, w) int labels 0..F-1 (-1 elsewhere) of objects lying flat that are big
-    enough for a segment (`min_cells`); no flat objects and every valid cell without a plane."""
+    parts under it), and the (h, w) int labels 0..F-1 (-1 elsewhere) of objects lying flat; no flat objects
+    and every valid cell without a plane."""
     fg = _above(Pg, plane, config)
     flat_labels = np.full(fg.shape, -1, dtype=np.int64)
     if plane is None:
         return fg, flat_labels
     table_lab = _support_colour(Pg, lab_g, plane, config)
+    # each is kept whatever its count of cells with depth: depth drops out over much of a thin dark or
+    # shiny object, and its mask, filled with the pixels of its colour, is judged by size when painted
     flat_labels = _flat_objects(fg, Pg, lab_g, plane, config, table_lab)
-    if np.any(flat_labels >= 0):  # each is kept when it is big enough for a segment
-        big = np.bincount(flat_labels[flat_labels >= 0]) >= min_cells
-        flat_labels = np.where(big[np.maximum(flat_labels, 0)], flat_labels, -1)
     fg = _thin_parts(fg, Pg, lab_g, plane, config, table_lab) & (flat_labels < 0)  # one of them
     return fg, flat_labels

@@ -49,7 +49,7 @@ def segment_objects(
     small_rgb = cv2.resize(rgb[: h * s, : w * s], (w, h), interpolation=cv2.INTER_AREA) if s > 1 else rgb
     lab_g = lab_image(small_rgb[:h, :w])
     min_cells = max(1, int(np.ceil(config.min_segment_px / (s * s))))
-    fg, flat_labels = _foreground(Pg, lab_g, plane, config, min_cells)
+    fg, flat_labels = _foreground(Pg, lab_g, plane, config)
     flat = flat_labels >= 0
 
     labels, geo = _grid_labels(Pg, lab_g, fg, f_px, s, config)
