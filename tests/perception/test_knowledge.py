@@ -15,9 +15,9 @@ from prompose_grasp.perception.grounding.score import (
     SHAPE_FIT,
     CandidateFeatures,
     ScoringWeights,
+    height_seen_in_full,
     knowledge_size_term,
     knowledge_terms,
-    seen_in_full,
 )
 from prompose_grasp.perception.knowledge import COARSE_SHAPES, ObjectKnowledge, load_table
 from prompose_grasp.perception.knowledge.table import _joined
@@ -148,24 +148,24 @@ def test_an_extent_seen_in_full_is_judged_strictly_for_being_too_small():
     lo, hi = np.array([0.25, 0.17, 0.05]), np.array([0.34, 0.23, 0.08])
     cracker = np.array([[0.16, 0.06, 0.21]])
     r = np.log((0.21 + w.knowledge_slack_m) / lo[0])
-    hidden = knowledge_size_term(cracker, lo, hi, w, seen=np.zeros((1, 3)))[0]
-    whole = knowledge_size_term(cracker, lo, hi, w, seen=np.array([[0.0, 0.0, 1.0]]))[0]
+    hidden = knowledge_size_term(cracker, lo, hi, w, height_seen=np.zeros(1))[0]
+    whole = knowledge_size_term(cracker, lo, hi, w, height_seen=np.ones(1))[0]
     assert hidden == pytest.approx(knowledge_size_term(cracker, lo, hi, w)[0])  # not judged: as before
     assert whole == pytest.approx(2.0 * np.exp(-0.5 * (r / w.knowledge_under_sigma_seen) ** 2) - 1.0)
     assert whole < hidden - 0.4
     cereal = np.array([[0.21, 0.07, 0.30]])
-    assert knowledge_size_term(cereal, lo, hi, w, seen=np.ones((1, 3)))[0] == pytest.approx(1.0)
+    assert knowledge_size_term(cereal, lo, hi, w, height_seen=np.ones(1))[0] == pytest.approx(1.0)
     # the same box lying (21 cm its footprint's length) is not judged strictly: a footprint is never sure
     lying = np.array([[0.21, 0.16, 0.06]])
-    assert knowledge_size_term(lying, lo, hi, w, seen=np.array([[0.0, 0.0, 1.0]]))[0] == pytest.approx(hidden)
+    assert knowledge_size_term(lying, lo, hi, w, height_seen=np.ones(1))[0] == pytest.approx(hidden)
     # seen whole, sure of the height only (a footprint loses thin parts and a round body's far half)
     grey = np.zeros(len(PALETTE))
     feats = dataclasses.replace(
         _feats([[0.1, 0.05, 0.1]] * 3, ["box", "cylinder", "box"], [grey] * 3),
         outline_hidden=np.array([0.0, w.knowledge_outline_hidden, 1.0]),
     )
-    np.testing.assert_allclose(seen_in_full(feats, w), [[0, 0, 1], [0, 0, 0], [0, 0, 0]])
-    assert seen_in_full(_feats([[0.1, 0.05, 0.1]], ["box"], [grey]), w) is None
+    np.testing.assert_allclose(height_seen_in_full(feats, w), [1, 0, 0])
+    assert height_seen_in_full(_feats([[0.1, 0.05, 0.1]], ["box"], [grey]), w) is None
 
 
 def test_a_kind_that_lies_is_judged_with_its_height_as_its_shortest_extent():

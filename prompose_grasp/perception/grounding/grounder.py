@@ -265,10 +265,10 @@ class Grounder:
         if symmetry != "y_continuous":
             return prior
         mid = 0.5 * (match.size_lo_m + match.size_hi_m)  # largest first
-        # the pair with the smallest ratio: (0, 1) or (1, 2)
-        pair = (0, 1) if mid[0] / mid[1] < mid[1] / mid[2] else (1, 2)
-        height = mid[({0, 1, 2} - set(pair)).pop()]
-        return dataclasses.replace(prior, typical_extent_m=np.array([mid[pair[0]], mid[pair[1]], height]))
+        # the two most alike (the smaller ratio of neighbours) are the footprint
+        footprint_first = mid[0] / mid[1] < mid[1] / mid[2]
+        typical = mid if footprint_first else mid[[1, 2, 0]]
+        return dataclasses.replace(prior, typical_extent_m=typical)
 
     def _embed(self, texts: list[str]) -> np.ndarray:
         """(N, D) unit embeddings, cached per text (descriptions come from a small vocabulary)."""

@@ -149,13 +149,13 @@ __all__ = [
     "ScoringWeights",
     "candidate_totals",
     "coarse_shape_fits",
+    "height_seen_in_full",
     "knowledge_size_term",
     "knowledge_terms",
     "knows_more_than_family",
     "metric_size_term",
     "score_candidates",
     "score_of_total",
-    "seen_in_full",
     "total_of_score",
 ]
 
@@ -261,22 +261,20 @@ def _long_thin(extents_m: np.ndarray) -> np.ndarray:
     return e[:, 0] >= ELONGATED_RATIO * e[:, 1]
 
 
-def seen_in_full(feats: CandidateFeatures, w: ScoringWeights) -> np.ndarray | None:
-    """(K, 3) in [0, 1]: how surely each candidate's measured footprint length, footprint width and height
-    are its whole extents (module docstring, "Object knowledge"); None when the outlines were not judged.
+def height_seen_in_full(feats: CandidateFeatures, w: ScoringWeights) -> np.ndarray | None:
+    """(K,) in [0, 1]: how surely each candidate's measured height is its whole height (module docstring,
+    "Object knowledge"); None when the outlines were not judged.
 
-    Only the height can be sure: with free space all round (`describe.outline_hidden` at most
-    `knowledge_outline_free`, falling to nothing at `knowledge_outline_hidden`) the top is seen and the
-    plane is known. The footprint is not, even then: a round body's far half is behind it, and thin parts
-    near the table (a toy plane's wings, a knife's blade) fall under the segmentation's height cut with
-    nothing in front of them.
+    With free space all round (`describe.outline_hidden` at most `knowledge_outline_free`, falling to
+    nothing at `knowledge_outline_hidden`) the top is seen and the plane is known. The footprint is never
+    sure, even then: a round body's far half is behind it, and thin parts near the table (a toy plane's
+    wings, a knife's blade) fall under the segmentation's height cut with nothing in front of them.
     """
     if feats.outline_hidden is None:
         return None
     h = np.asarray(feats.outline_hidden, dtype=np.float64)
     free, hidden = w.knowledge_outline_free, w.knowledge_outline_hidden
-    s = np.clip((hidden - h) / (hidden - free), 0.0, 1.0)
-    return np.column_stack([np.zeros_like(s), np.zeros_like(s), s])
+    return np.clip((hidden - h) / (hidden - free), 0.0, 1.0)
 
 
 def knowledge_size_term(
@@ -285,28 +283,28 @@ def knowledge_size_term(
     hi_m: np.ndarray,
     w: ScoringWeights,
     lies: bool = False,
-    seen: np.ndarray | None = None,
+    height_seen: np.ndarray | None = None,
 ) -> np.ndarray:
     """(K,) in [-1, 1]: how well (K, 3) measured extents [m] (footprint length, width, height) fall in an
     object's typical (3,) size range [lo, hi] (both largest first): orientation-free, or, for a kind that
     `lies` on its long side, with the height against the shortest range (module docstring, "Object
-    knowledge"). `seen`: (K, 3) in [0, 1], how surely the view shows each measured extent in full
-    (`seen_in_full`); None: none is sure."""
+    knowledge"). `height_seen`: (K,) in [0, 1], how surely the view shows each measured height in full
+    (`height_seen_in_full`); None: none is sure."""
     e = np.maximum(np.asarray(extents_m, dtype=np.float64), 1e-3)
     if lies:
         # footprint largest first, then the height: a 19 cm bottle standing is no banana lying
-        order = np.tile(np.array([0, 1, 2]), (len(e), 1))
-        e = np.column_stack([np.sort(e[:, :2], axis=1)[:, ::-1], e[:, 2]])
+        footprint = np.argsort(-e[:, :2], axis=1, kind="stable")
+        order = np.column_stack([footprint, np.full(len(e), 2)])
     else:
         order = np.argsort(-e, axis=1, kind="stable")
-        e = np.take_along_axis(e, order, axis=1)
+    e = np.take_along_axis(e, order, axis=1)
     over = np.log(np.maximum(e - w.knowledge_slack_m, 1e-3) / hi_m)
     under = np.log((e + w.knowledge_slack_m) / lo_m)
     r_over, r_under = np.maximum(over, 0.0), np.minimum(under, 0.0)
     under_sigma = np.broadcast_to(np.asarray(w.knowledge_under_sigma, dtype=np.float64), e.shape)
-    if seen is not None:
-        # an extent seen in full is the object's own: too small is judged strictly
-        sure = np.take_along_axis(np.asarray(seen, dtype=np.float64), order, axis=1)
+    if height_seen is not None:
+        # a height seen in full is the object's own: too small is judged strictly
+        sure = np.where(order == 2, np.asarray(height_seen, dtype=np.float64)[:, None], 0.0)
         under_sigma = under_sigma + (w.knowledge_under_sigma_seen - under_sigma) * sure
     # summed, not averaged, over the axes: the range already spans the kind's variation, so one extent
     # outside it is as telling as three
@@ -323,7 +321,7 @@ def knowledge_terms(
     if parsed.size is None:
         lo, hi = match.size_lo_m, match.size_hi_m
         total += w.knowledge_size * knowledge_size_term(
-            feats.extents_m, lo, hi, w, match.lies, seen_in_full(feats, w)
+            feats.extents_m, lo, hi, w, match.lies, height_seen_in_full(feats, w)
         )
     if match.colours and not parsed.colours:
         cols = [feats.palette.index(c) for c in match.colours]
