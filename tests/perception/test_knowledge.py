@@ -390,3 +390,33 @@ def test_a_noun_without_a_library_family_is_shaped_by_its_entry_not_by_how_the_w
     assert elephant[0] == pytest.approx(elephant[1])
     knife = totals("the knife", [[0.21, 0.02, 0.01], [0.21, 0.09, 0.09]])
     assert knife[0] > knife[1]
+
+
+def test_a_handle_speaks_for_or_against_a_noun_by_its_table_entry_when_the_library_has_no_family():
+    """The library has no family for "apple", "kettle" or "elephant"; the table says an apple is a plain
+    round body, a kettle has a handle, a toy animal is irregular. Of two candidates alike but for a handle
+    seen on one (a red mug beside a red apple, both 9 cm), the handle costs "the apple" the handle weight and
+    gains it for "the kettle"; for "the elephant" (a toy's arm reads like a handle) it says nothing."""
+    from prompose_grasp.perception.grounding.grounder import Grounder
+    from prompose_grasp.perception.grounding.score import candidate_totals, knowledge_handle_sign
+    from prompose_grasp.perception.grounding.types import GroundingConfig
+
+    g = Grounder(GroundingConfig())
+    red = np.zeros(len(PALETTE))
+    red[PALETTE.index("red")] = 1.0
+    feats = dataclasses.replace(
+        _feats([[0.09, 0.085, 0.08]] * 2, ["cylinder"] * 2, [red, red]), handles=np.array([True, False])
+    )
+
+    def gap(prompt: str) -> float:
+        parsed = parse_prompt(prompt)
+        prior, match = g._prior_for(parsed, True), g._knowledge_for(parsed)
+        assert prior is None and match is not None and match.weight == pytest.approx(1.0)
+        t = candidate_totals(parsed, feats, g._shape_prob(parsed), None, g.weights, knowledge=match)
+        return float(t[0] - t[1])
+
+    assert gap("the apple") == pytest.approx(-g.weights.handle)
+    assert gap("the kettle") == pytest.approx(g.weights.handle)
+    assert gap("the elephant") == pytest.approx(0.0)
+    assert knowledge_handle_sign(g._knowledge_for(parse_prompt("the orange"))) == -1.0
+    assert knowledge_handle_sign(g._knowledge_for(parse_prompt("the hammer"))) == 0.0  # its grip

@@ -10,7 +10,7 @@ cosine):
 | shape | fit of the measured shape family to the noun: p(family | noun) / max p, to [-1, 1] (*) (***) | 0.5 |
 | metric size | log-normal fit of the measured extents to the typical size of the noun's prior family | 1.5 |
 | top heights | overlap of the candidate's and the family mesh's top-height histograms, to [-1, 1] | 1.5 |
-| handle | a handle seen: +1 when the noun's family mesh has one, -1 when it has none; 0 unseen | 1.0 |
+| handle | a handle seen: +1 when the noun's family mesh (or entry) has one, -1 when it has none; 0 unseen | 1.0 |
 | taper | a round candidate's taper unlike the noun's family mesh's: to -1; 0 alike or unmeasured | 1.0 |
 | rival | another library family explains the candidate better than the noun's: minus the difference | 0.5 |
 | knowledge size | the measured extents against the named object's typical size range (**) | 1.5 |
@@ -61,7 +61,12 @@ apart, when the camera sees it (`describe.handle_seen`). The noun's family mesh 
 test finds one on its points seen all around (in the default library: the mug family only). A candidate
 showing a handle gains for "the mug" and loses for "the cup", "the can", "the bowl"; one showing none is
 not judged (the handle may be behind the body). This fixes the mug that outscored the cups for "the cup"
-once its handle stayed in its mask (docs/grounding.md, "Mug handles").
+once its handle stayed in its mask (docs/grounding.md, "Mug handles"). For a noun the library has no family
+for, the knowledge table's entry says it instead (`knowledge_handle_sign`, times the match's weight): a
+handle seen gains for an entry with feature "handle" whose body can be round (a kettle, a pitcher) and
+loses for a plain round body (coarse shape cylinder or round, no handle: an apple, an orange); an
+irregular kind without one is not judged (a toy's arm or a duck's beak beside a round body reads like a
+handle), nor a long or flat one (a hammer's or a knife's handle is its grip, not a loop beside a body).
 
 Taper. A hidden-handle mug and a paper cup still look alike; what tells them apart is that the cup widens
 upwards (`describe.taper`: log of the upper band's radius over the lower's; development table: mugs -0.02 to
@@ -150,6 +155,7 @@ __all__ = [
     "candidate_totals",
     "coarse_shape_fits",
     "height_seen_in_full",
+    "knowledge_handle_sign",
     "knowledge_size_term",
     "knowledge_terms",
     "knows_more_than_family",
@@ -334,6 +340,21 @@ def knowledge_terms(
     return match.weight * total
 
 
+def knowledge_handle_sign(match: Any) -> float:
+    """+1 when a handle seen on a candidate speaks for a `knowledge.KnowledgeMatch`, -1 when it speaks
+    against it, 0 when a view cannot say (module docstring, "Handle"). `describe.handle_seen` finds a loop
+    or grip beside a round body: it speaks for an entry with feature "handle" whose body can be round (coarse
+    shape cylinder, round or irregular: a kettle, a pitcher), against one that is every way a plain round
+    body (cylinder or round, no handle: an apple, a can); a long or flat kind's "handle" is its grip (a
+    knife's, a hammer's), which does not stand beside a round body."""
+    bodies = ("cylinder", "round")
+    if any("handle" in e.features and e.shape in (*bodies, "irregular") for e in match.entries):
+        return 1.0
+    if all(e.shape in bodies and "handle" not in e.features for e in match.entries):
+        return -1.0
+    return 0.0
+
+
 def coarse_shape_fits(match: Any, feats: CandidateFeatures) -> np.ndarray:
     """(K,) in [-1, 1]: each candidate's measured shape family against the coarse shapes of a
     `knowledge.KnowledgeMatch` (`SHAPE_FIT`, the best of its shapes)."""
@@ -483,6 +504,8 @@ def _base_terms(
         total += w.top_heights * (2.0 * overlap - 1.0)
     if noun_prior is not None and feats.handles is not None:
         total += w.handle * np.where(feats.handles, 1.0 if noun_prior.has_handle else -1.0, 0.0)
+    elif knows_better and feats.handles is not None:  # no family for the noun: the table's entry says
+        total += w.handle * knowledge.weight * np.where(feats.handles, knowledge_handle_sign(knowledge), 0.0)
     # a noun whose mesh is not round has a NaN taper, which compares False: no term
     if noun_prior is not None and noun_prior.taper >= w.taper_judged_from and feats.tapers is not None:
         gap = np.nan_to_num(feats.tapers - noun_prior.taper)  # NaN: not measured, gap 0, term 0
