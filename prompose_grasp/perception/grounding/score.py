@@ -10,7 +10,7 @@ cosine):
 | shape | fit of the measured shape family to the noun: p(family | noun) / max p, to [-1, 1] (*) (***) | 0.5 |
 | metric size | log-normal fit of the measured extents to the typical size of the noun's prior family | 1.5 |
 | top heights | overlap of the candidate's and the family mesh's top-height histograms, to [-1, 1] | 1.5 |
-| handle | a handle seen: +1 when the noun's family mesh (or entry) has one, -1 when it has none; 0 unseen | 1.0 |
+| handle | a handle seen: +1 when the noun's family mesh (or entry) has one, -1 when it has none | 1.0 |
 | taper | a round candidate's taper unlike the noun's family mesh's: to -1; 0 alike or unmeasured | 1.0 |
 | rival | another library family explains the candidate better than the noun's: minus the difference | 0.5 |
 | knowledge size | the measured extents against the named object's typical size range (**) | 1.5 |
