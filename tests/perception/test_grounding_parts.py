@@ -220,21 +220,27 @@ def test_a_handles_fragments_join_their_body_and_far_or_low_ones_do_not():
 
 def test_an_edge_on_screens_pieces_chain_into_one_segment_and_scattered_specks_do_not():
     """A screen seen edge-on leaves depth in pieces of a few cells, 1-2 cm apart up its 20 cm (dev 28 scene
-    122): chained, they are one segment of at least the minimum size. Pieces as far apart as table specks
-    (5 cm), pieces standing under 2 cm (table noise) and a chain too small stay apart."""
+    122): chained, they are one segment of at least the minimum size. So is a stapler 1.2 m away whose
+    depth the sensor drops along all its edges (6 pieces, 18 cells: over half the minimum; its painted mask
+    is judged by size). Pieces as far apart as table specks (5 cm), pieces standing under 2 cm (table
+    noise) and a chain under half the minimum (9 cells) stay apart."""
     up = np.linspace(0.03, 0.21, 13)  # 13 pieces 1.5 cm apart up a screen, 3 cells each
     screen = np.repeat(np.column_stack([np.zeros(13), np.zeros(13), up]), 3, axis=0)
     specks = np.repeat(np.column_stack([np.full(5, 0.5), np.linspace(0, 0.2, 5), np.full(5, 0.1)]), 3, axis=0)
     low = np.repeat(np.column_stack([np.full(5, 1.0), np.zeros(5), np.linspace(0.002, 0.012, 5)]), 3, axis=0)
     short = np.repeat(np.column_stack([np.full(3, 1.5), np.zeros(3), [0.05, 0.065, 0.08]]), 3, axis=0)
-    P = np.concatenate([screen, specks, low, short])
+    stapler = np.repeat(
+        np.column_stack([np.linspace(2.0, 2.1, 6), np.zeros(6), np.full(6, 0.035)]), 3, axis=0
+    )
+    P = np.concatenate([screen, specks, low, short, stapler])
     heights = P[:, 2]  # the support is z = 0
-    compact = np.repeat(np.arange(26), 3)  # 13 + 5 + 5 + 3 pieces of 3 cells
-    counts = np.full(26, 3)
-    target = np.arange(26)
-    roots = _chain_pieces(target, compact, np.ones(26, bool), counts, 30, P, heights)
-    assert roots.tolist() == [True] + [False] * 25  # the screen's 39 cells reach 30; the short chain's 9 not
-    assert target.tolist() == [0] * 13 + list(range(13, 26))
+    compact = np.repeat(np.arange(32), 3)  # 13 + 5 + 5 + 3 + 6 pieces of 3 cells
+    counts = np.full(32, 3)
+    target = np.arange(32)
+    roots = _chain_pieces(target, compact, np.ones(32, bool), counts, 30, P, heights)
+    # the screen's 39 cells reach 30, the stapler's 18 half of it; the short chain's 9 do not
+    assert roots.tolist() == [True] + [False] * 25 + [True] + [False] * 5
+    assert target.tolist() == [0] * 13 + list(range(13, 26)) + [26] * 6
 
 
 def test_a_thin_base_under_the_height_cut_joins_what_stands_above_it_and_the_table_does_not():

@@ -29,9 +29,10 @@ _FRAGMENT_NEAR_SHARE = 0.25
 _FRAGMENT_MIN_HEIGHT_M = 0.02
 
 #: Small pieces that join nothing (`_attach_fragments`) chain to each other within this distance [m]; a chain
-#: of at least the minimum segment size is a segment. A laptop screen seen edge-on has depth only in pieces of
-#: 1-7 grid cells, 1-2 cm apart along its 20 cm of height (dev 28 scene 122): each alone is too small and
-#: too far from the base to join it, so the candidate was the base alone, a "flat" object.
+#: of at least half the minimum segment size is a segment (`_chain_pieces`). A laptop screen seen edge-on has
+#: depth only in pieces of 1-7 grid cells, 1-2 cm apart along its 20 cm of height (dev 28 scene 122): each
+#: alone is too small and too far from the base to join it, so the candidate was the base alone, a "flat"
+#: object.
 _PIECE_CHAIN_M = 0.025
 
 
@@ -188,13 +189,18 @@ def _chain_pieces(
     heights: np.ndarray,
 ) -> np.ndarray:
     """Chain the small segments of `pieces` (bool per segment) whose cells standing `_FRAGMENT_MIN_HEIGHT_M`
-    or more above the support come within `_PIECE_CHAIN_M` of each other; a chain of `min_cells` or more
-    cells becomes one segment (in place: `target` of its pieces points to its first piece). Returns the
-    bool per segment of those first pieces (kept, though small)."""
+    or more above the support come within `_PIECE_CHAIN_M` of each other; a chain of half `min_cells` or
+    more cells becomes one segment (in place: `target` of its pieces points to its first piece), whose
+    painted mask must still reach the minimum size. Returns the bool per segment of those first pieces
+    (kept, though small)."""
     roots = np.zeros(len(target), dtype=bool)
     cells = np.nonzero((compact >= 0) & (heights.ravel() >= _FRAGMENT_MIN_HEIGHT_M))[0]
     cells = cells[pieces[compact[cells]]]
-    if len(cells) < 2 or counts[pieces].sum() < min_cells:
+    # depth drops out over much of a small object's surface (a band along each of its edges), so its cells
+    # with depth under-count it: a chain of half the minimum's cells is kept, and its painted mask (the
+    # pixels of its colour without depth filled in) is judged by the minimum size
+    least = (min_cells + 1) // 2
+    if len(cells) < 2 or counts[pieces].sum() < least:
         return roots
     links = cKDTree(points.reshape(-1, 3)[cells]).query_pairs(_PIECE_CHAIN_M, output_type="ndarray")
     if not len(links):
@@ -209,7 +215,7 @@ def _chain_pieces(
     size = np.bincount(chain[members], weights=counts[members], minlength=n)
     for c in np.unique(chain[members]):
         mine = members[chain[members] == c]
-        if len(mine) > 1 and size[c] >= min_cells:
+        if len(mine) > 1 and size[c] >= least:
             target[mine] = mine[0]
             roots[mine[0]] = True
     return roots
