@@ -111,15 +111,31 @@ class Command:
     into: bool = False
 
 
+#: Nouns plural in form that name one object: a pair of blades, jaws, lenses or legs made as one thing ("pick
+#: up the scissors" is one pick, and the wrong-object check judges it as one object), and words whose final
+#: "s" is no plural ending.
+_ONE_OBJECT_PLURALS = frozenset(
+    {
+        "scissors", "shears", "secateurs", "pruners", "pliers", "tongs", "tweezers", "clippers", "cutters",
+        "snips", "glasses", "eyeglasses", "spectacles", "sunglasses", "goggles", "binoculars", "headphones",
+        "earphones", "jeans", "trousers", "pants", "shorts", "tights", "leggings", "pajamas", "pyjamas",
+        "overalls", "thermos", "lens",
+    }
+)  # fmt: skip
+
+
 def _looks_plural(phrase: str) -> bool:
-    """Whether a phrase names several objects: "all boxes", "both cans", "the cartons" (not "the glass")."""
+    """Whether a phrase names several objects: "all boxes", "both cans", "the cartons" (not "the glass", "the
+    scissors", "the asparagus" or "a pair of socks")."""
     words = phrase.split()
     if not words:
         return False
+    if words[0] in ("all", "every", "both"):
+        return True
     head = words[-1]
-    return words[0] in ("all", "every", "both") or (
-        len(head) > 3 and head.endswith("s") and not head.endswith("ss")
-    )
+    if head in _ONE_OBJECT_PLURALS or "pair of" in phrase or head.endswith(("ss", "us", "is")):
+        return False
+    return len(head) > 3 and head.endswith("s")
 
 
 def _fixture_of(phrase: str) -> str | None:

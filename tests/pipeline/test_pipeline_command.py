@@ -25,6 +25,13 @@ def parser():
         ("Please, could you drop the ball into the tote?", "place", "the ball", "bin", False),
         ("take all boxes to the kitchen counter", "place", "all boxes", "table", True),
         ("grab the glass", "pick", "the glass", None, False),
+        # plural in form, one object: a pair of blades or lenses, a word whose "s" is no plural ending
+        ("pick up the scissors", "pick", "the scissors", None, False),
+        ("pick up the green eyeglasses", "pick", "the green eyeglasses", None, False),
+        ("put the binoculars in the bin", "place", "the binoculars", "bin", False),
+        ("pick up the asparagus", "pick", "the asparagus", None, False),
+        ("pick up the pair of socks", "pick", "the pair of socks", None, False),
+        ("pick up the socks", "pick", "the socks", None, True),
         # Verbs and places that are in no list, understood by similarity:
         ("snatch the mug left of the bowl", "pick", "the mug left of the bowl", None, False),
         ("retrieve the stapler", "pick", "the stapler", None, False),
