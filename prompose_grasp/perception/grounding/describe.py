@@ -119,7 +119,7 @@ yaw or metric size, and occlusion removes cells without changing the heights of 
 A cell must hold several samples for its highest one to be the top: a cell that catches a single point of
 a side wall reads that point's height. So the cells are never smaller than `TOP_CELL_SAMPLES` times the
 spacing of the points measured (`top_height_cell_fraction`): a 6 cm can 1.4 m away, sampled every 5 mm,
-gets 1.5 cm cells rather than 6 mm ones, in which its sides' points had spread half its cells over the
+gets 1.5 cm cells rather than 6 mm ones, in which its sides' points would spread half its cells over the
 lower bins.
 
 Outline (`outline_hidden`): what a candidate's visible extents can be trusted for. Just outside its mask,
